@@ -1,0 +1,107 @@
+//! [`Command`] → canonical text: the mirror image of [`crate::parse()`].
+//!
+//! Numbers are written with Rust's shortest round-trip formatting, so
+//! `parse(encode(c)) == c` holds for every command (a property test proves
+//! it). Encoding never allocates: it writes into any [`fmt::Write`], such
+//! as a `heapless::String` on a microcontroller or a `String` on a host.
+
+use core::fmt::{self, Display, Write};
+
+use crate::command::{Args, Command, Payload};
+
+impl Command<'_> {
+    /// Writes the frame for this command.
+    pub fn encode<W: Write>(&self, w: &mut W) -> fmt::Result {
+        w.write_str(self.id().name())?;
+        let arg = |w: &mut W| w.write_char(' ');
+        match self.args() {
+            Args::None | Args::OptCount(None) | Args::OptAmount(None) | Args::OptName(None) => Ok(()),
+            Args::Flag(on) => {
+                arg(w)?;
+                w.write_char(if *on { '1' } else { '0' })
+            }
+            Args::OptCount(Some(n)) => {
+                arg(w)?;
+                write!(w, "{n}")
+            }
+            Args::Pwm(n) => {
+                arg(w)?;
+                write!(w, "{n}")
+            }
+            Args::Amount(v) | Args::OptAmount(Some(v)) | Args::Angle(v) => {
+                arg(w)?;
+                write!(w, "{v}")
+            }
+            Args::Name(s)
+            | Args::OptName(Some(s))
+            | Args::Path(s)
+            | Args::Text(s)
+            | Args::Secret(s)
+            | Args::NewPassword(s)
+            | Args::ParamName(s) => {
+                arg(w)?;
+                w.write_str(s)
+            }
+            Args::SetParam { name, value } => {
+                arg(w)?;
+                write!(w, "{name}:{value}")
+            }
+            Args::Setpoint(p) => {
+                arg(w)?;
+                joined(w, ':', &[p.x, p.y, p.z, p.yaw])
+            }
+            Args::Point(p) => {
+                arg(w)?;
+                joined(w, ':', &[p.x, p.y, p.z])
+            }
+            Args::Pose(p) => {
+                arg(w)?;
+                joined(w, ',', &[p.x, p.y, p.z, p.yaw])
+            }
+            Args::Zyhk { heights, land } => {
+                arg(w)?;
+                joined(w, ',', heights)?;
+                match land {
+                    Some(l) => {
+                        w.write_char(' ')?;
+                        joined(w, ',', &[l.x, l.y, l.yaw])
+                    }
+                    None => Ok(()),
+                }
+            }
+            Args::Mission { ext_id, payload } => {
+                arg(w)?;
+                write!(w, "{ext_id}:")?;
+                match payload {
+                    Payload::Json(s) | Payload::Path(s) => w.write_str(s),
+                }
+            }
+            Args::MwExec { ext_id, wp_ids } => {
+                arg(w)?;
+                write!(w, "{ext_id}:")?;
+                joined(w, ',', wp_ids)
+            }
+            Args::Ai1Mission { task_id, file } => {
+                arg(w)?;
+                write!(w, "{task_id}:{file}")
+            }
+        }
+    }
+}
+
+fn joined<W: Write, T: Display>(w: &mut W, sep: char, items: &[T]) -> fmt::Result {
+    for (i, item) in items.iter().enumerate() {
+        if i > 0 {
+            w.write_char(sep)?;
+        }
+        write!(w, "{item}")?;
+    }
+    Ok(())
+}
+
+/// The frame text, as [`Command::encode`] writes it.
+impl Display for Command<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.encode(f)
+    }
+}

@@ -1,0 +1,245 @@
+//! Error types, return codes and the exact message strings of DESIGN.md.
+//!
+//! Errors stay typed until the response is written; the strings a client
+//! sees live here and nowhere else.
+
+use core::fmt;
+
+use crate::table::CommandId;
+
+/// The `ret` field of a response.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(i16)]
+pub enum Ret {
+    /// Success.
+    Ok = 0,
+    /// General failure; `msg` says why.
+    Failed = -1,
+    /// Invalid arguments or unsupported command.
+    InvalidArgs = -2,
+    /// An external system call failed.
+    SystemCall = -3,
+    /// An unhandled fault while processing the command.
+    Unhandled = -100,
+}
+
+impl Ret {
+    /// The number on the wire.
+    pub fn code(self) -> i16 {
+        self as i16
+    }
+}
+
+/// Why a command's arguments were refused. Every variant is answered with
+/// ret -2 and the message `Invalid arguments, usage: <usage>`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ArgError {
+    /// A required argument is missing.
+    Missing,
+    /// Arguments were given to a command that takes none, or too many.
+    Unexpected,
+    /// The fields are not in the command's shape (separators, counts).
+    Malformed,
+    /// A field that should be a number is not a decimal number.
+    NotANumber,
+    /// A number is NaN, infinite, or too large for its type.
+    NotFinite,
+    /// A number is outside its stated range.
+    OutOfRange,
+    /// A flag is not exactly `0` or `1`.
+    NotAFlag,
+    /// A name or path could escape its directory or holds forbidden bytes.
+    UnsafePath,
+    /// A text field holds control characters or is too long.
+    BadText,
+    /// A list holds more items than its fixed capacity.
+    TooMany,
+    /// A JSON payload is not well-formed (or nests too deeply).
+    BadJson,
+    /// A new password breaks the password rules.
+    BadPassword,
+    /// [`crate::Command::new`] got arguments of another command's grammar.
+    WrongGrammar,
+}
+
+/// Why a frame could not be turned into a [`crate::Command`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ParseError<'a> {
+    /// The frame is empty or blank.
+    Empty,
+    /// The name is not in the command table; the name is borrowed verbatim.
+    Unknown(&'a str),
+    /// The command is known but its arguments are not valid.
+    InvalidArgs(CommandId, ArgError),
+}
+
+impl ParseError<'_> {
+    /// The `cmd` id to answer with: 0 unless the command is known.
+    pub fn command(&self) -> Option<CommandId> {
+        match self {
+            ParseError::InvalidArgs(id, _) => Some(*id),
+            ParseError::Empty | ParseError::Unknown(_) => None,
+        }
+    }
+}
+
+/// A gate that refused to run a command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Refusal {
+    /// A password is set and the session has not logged in.
+    LoginFirst,
+    /// The command is admin-only.
+    AdminOnly,
+    /// `runOnArm=false` and the vehicle is armed.
+    Armed,
+    /// `runInLock=false`, lock mode is on and the session is not admin.
+    Locked,
+}
+
+/// Capacity of a backend's failure message, in bytes.
+pub const FAILURE_MSG_CAPACITY: usize = 96;
+
+/// A command the backend could not carry out.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Failure {
+    ret: Ret,
+    msg: heapless::String<FAILURE_MSG_CAPACITY>,
+}
+
+impl Failure {
+    /// A failure with `ret` and a message; a message longer than
+    /// [`FAILURE_MSG_CAPACITY`] is cut at a character boundary.
+    pub fn new(ret: Ret, msg: &str) -> Self {
+        let mut f = Failure {
+            ret,
+            msg: heapless::String::new(),
+        };
+        push_truncated(&mut f.msg, msg);
+        f
+    }
+
+    /// A failure whose message is formatted, cut like [`Failure::new`].
+    pub fn fmt(ret: Ret, args: fmt::Arguments<'_>) -> Self {
+        let mut w = Truncating(heapless::String::new());
+        // Truncating never reports an error.
+        let _ = fmt::write(&mut w, args);
+        Failure { ret, msg: w.0 }
+    }
+
+    /// ret -1: the command failed; `msg` says why.
+    pub fn failed(msg: &str) -> Self {
+        Failure::new(Ret::Failed, msg)
+    }
+
+    /// ret -2: this backend does not support the command or value.
+    pub fn unsupported(msg: &str) -> Self {
+        Failure::new(Ret::InvalidArgs, msg)
+    }
+
+    /// ret -3: a system call or I/O failed; `msg` says which.
+    pub fn system(msg: &str) -> Self {
+        Failure::new(Ret::SystemCall, msg)
+    }
+
+    /// ret -100: the backend hit a fault (the host catches panics as this).
+    pub fn unhandled() -> Self {
+        Failure::new(Ret::Unhandled, messages::UNHANDLED)
+    }
+
+    /// The return code.
+    pub fn ret(&self) -> Ret {
+        self.ret
+    }
+
+    /// The message.
+    pub fn msg(&self) -> &str {
+        &self.msg
+    }
+}
+
+fn push_truncated<const N: usize>(s: &mut heapless::String<N>, text: &str) {
+    for c in text.chars() {
+        if s.push(c).is_err() {
+            break;
+        }
+    }
+}
+
+struct Truncating<const N: usize>(heapless::String<N>);
+
+impl<const N: usize> fmt::Write for Truncating<N> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        push_truncated(&mut self.0, s);
+        Ok(())
+    }
+}
+
+/// The exact messages of DESIGN.md's error table.
+pub mod messages {
+    /// Unknown name; the (cut, escaped) name follows.
+    pub const UNSUPPORTED_PREFIX: &str = "Unsupported command: ";
+    /// Empty or blank frame.
+    pub const EMPTY: &str = "Empty command";
+    /// Bad or missing arguments; the usage line follows.
+    pub const INVALID_ARGS_PREFIX: &str = "Invalid arguments, usage: ";
+    /// Not logged in.
+    pub const LOGIN_FIRST: &str = "Login first!";
+    /// Wrong password.
+    pub const WRONG_PASSWORD: &str = "Wrong password!";
+    /// Armed gate.
+    pub const ARMED: &str = "Not allow when vehicle is ARMED!";
+    /// Lock gate.
+    pub const LOCKED: &str = "CMD not permitted to run in LOCK mode!";
+    /// Admin-only command, session not admin.
+    pub const ADMIN_ONLY: &str = "Admin only!";
+    /// The response did not fit the buffer.
+    pub const TOO_LARGE: &str = "Response too large";
+    /// A fault while processing.
+    pub const UNHANDLED: &str = "Unhandled exception";
+    /// How many bytes of an unknown name are echoed back.
+    pub const UNKNOWN_NAME_ECHO: usize = 32;
+}
+
+impl Refusal {
+    /// The message a client sees.
+    pub fn message(self) -> &'static str {
+        match self {
+            Refusal::LoginFirst => messages::LOGIN_FIRST,
+            Refusal::AdminOnly => messages::ADMIN_ONLY,
+            Refusal::Armed => messages::ARMED,
+            Refusal::Locked => messages::LOCKED,
+        }
+    }
+}
+
+impl fmt::Display for Refusal {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.message())
+    }
+}
+
+impl fmt::Display for ParseError<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ParseError::Empty => f.write_str(messages::EMPTY),
+            ParseError::Unknown(name) => {
+                f.write_str(messages::UNSUPPORTED_PREFIX)?;
+                f.write_str(cut_at_char_boundary(name, messages::UNKNOWN_NAME_ECHO))
+            }
+            ParseError::InvalidArgs(id, _) => {
+                f.write_str(messages::INVALID_ARGS_PREFIX)?;
+                f.write_str(id.spec().usage)
+            }
+        }
+    }
+}
+
+/// The longest prefix of `s` that is at most `max` bytes and ends on a
+/// character boundary.
+pub(crate) fn cut_at_char_boundary(s: &str, max: usize) -> &str {
+    let mut end = max.min(s.len());
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    s.get(..end).unwrap_or("")
+}

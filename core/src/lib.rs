@@ -1,0 +1,59 @@
+//! The LLUAV WebSocket command protocol, without I/O, allocation or panics.
+//!
+//! A client sends `cmd args` text frames (`set_sp_ned 1.0:2.0:-3.0:0.5`,
+//! `mw_exec 1001:1,2,3,5`, `mission 1001:{"waypoints":[...]}`) and gets
+//! exactly one JSON object back per frame (`{"ret":0,"cmd":23,"ts":...}`).
+//! This crate is everything about that protocol that does not touch a
+//! socket, a clock or a file:
+//!
+//! - [`table`]: the one command table (ids, names, grammar, gates, usage);
+//! - [`parse()`] / [`Command::encode`]: frame ↔ typed [`Command`], mirror
+//!   images of each other, borrowing from the frame;
+//! - [`gate`] and [`session`]: login, admin, armed and lock gates;
+//! - [`response`]: JSON responses in caller-provided fixed buffers;
+//! - [`Backend`] and [`Clock`]: what an adapter supplies;
+//! - [`Server::handle`]: the one entry point an adapter calls per message.
+//!
+//! ```
+//! use lluav_core::{Auth, Backend, Command, Context, Failure, Fields, Message, Outcome, Server, Session};
+//!
+//! struct Parked;
+//! impl Backend for Parked {
+//!     fn armed(&self) -> bool { false }
+//!     fn execute(&mut self, _: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+//!         out.str("note", "parked");
+//!         Ok(())
+//!     }
+//! }
+//!
+//! let mut server = Server::new(Parked, || 1_714_233_600_000, Auth::new(Some("secret")).unwrap());
+//! let mut session = Session::new();
+//! let mut out = [0u8; 512];
+//! assert_eq!(
+//!     server.handle(&mut session, Message::Text(b"state"), &mut out),
+//!     Outcome::Reply(r#"{"ret":-1,"cmd":2,"ts":1714233600000,"msg":"Login first!"}"#),
+//! );
+//! ```
+#![no_std]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod backend;
+pub mod command;
+mod encode;
+pub mod error;
+pub mod gate;
+pub mod parse;
+pub mod response;
+pub mod server;
+pub mod session;
+pub mod table;
+
+pub use backend::{Backend, Clock, Context};
+pub use command::{Args, Command, LandPoint, MAX_HEIGHTS, MAX_WAYPOINT_IDS, Payload, Point, Pose};
+pub use error::{ArgError, Failure, ParseError, Refusal, Ret};
+pub use parse::parse;
+pub use response::{Fields, Items, MIN_RESPONSE_CAPACITY};
+pub use server::{CloseCode, Message, Outcome, Server};
+pub use session::{Auth, AuthError, LoginOutcome, Session};
+pub use table::{CommandId, Flags, Grammar, Spec, TABLE};

@@ -1,0 +1,362 @@
+//! Responses: one JSON object per request, written into a caller-provided
+//! fixed-capacity buffer.
+//!
+//! A response is either whole or replaced: when the backend's fields do not
+//! fit, the client gets `{"ret":-1,...,"msg":"Response too large"}`, never a
+//! truncated or invalid object. Overflow is sticky: once a write does not
+//! fit, every later write is a no-op and the response is replaced.
+
+use core::fmt::{self, Write};
+
+use serde::Serialize;
+
+use crate::error::Ret;
+
+/// Room kept at the start of the buffer for `{"ret":..,"cmd":..,"ts":..`,
+/// which is written after the backend's fields (ret and ts are only known
+/// then) and moved in front of them.
+pub(crate) const HEAD_RESERVE: usize = r#"{"ret":-100,"cmd":255,"ts":-9223372036854775808"#.len();
+
+/// The smallest response buffer every error response fits in: the longest
+/// head, `,"msg":"`, the longest message (an unknown name of 32 bytes that
+/// are all escaped as `\u00XX`) and `"}`.
+pub const MIN_RESPONSE_CAPACITY: usize =
+    HEAD_RESERVE + r#","msg":"Unsupported command: "}"#.len() + 6 * crate::error::messages::UNKNOWN_NAME_ECHO;
+
+/// The bytes written so far and whether anything failed to fit.
+struct Sink<'b> {
+    buf: &'b mut [u8],
+    len: usize,
+    overflow: bool,
+}
+
+impl Sink<'_> {
+    fn bytes(&mut self, b: &[u8]) {
+        if self.overflow {
+            return;
+        }
+        let end = self.len + b.len();
+        match self.buf.get_mut(self.len..end) {
+            Some(dst) => {
+                dst.copy_from_slice(b);
+                self.len = end;
+            }
+            None => self.overflow = true,
+        }
+    }
+
+    fn byte(&mut self, b: u8) {
+        self.bytes(&[b]);
+    }
+
+    /// A JSON string made of `parts`, escaped per RFC 8259.
+    fn string(&mut self, parts: &[&str]) {
+        self.byte(b'"');
+        for part in parts {
+            self.escaped(part);
+        }
+        self.byte(b'"');
+    }
+
+    fn escaped(&mut self, s: &str) {
+        let bytes = s.as_bytes();
+        let mut start = 0;
+        for (i, &b) in bytes.iter().enumerate() {
+            let esc: &[u8] = match b {
+                b'"' => b"\\\"",
+                b'\\' => b"\\\\",
+                b'\n' => b"\\n",
+                b'\r' => b"\\r",
+                b'\t' => b"\\t",
+                0x00..=0x1f => b"",
+                _ => continue,
+            };
+            self.bytes(bytes.get(start..i).unwrap_or_default());
+            if esc.is_empty() {
+                const HEX: &[u8; 16] = b"0123456789abcdef";
+                let u = [
+                    b'\\',
+                    b'u',
+                    b'0',
+                    b'0',
+                    HEX[usize::from(b >> 4)],
+                    HEX[usize::from(b & 0xf)],
+                ];
+                self.bytes(&u);
+            } else {
+                self.bytes(esc);
+            }
+            start = i + 1;
+        }
+        self.bytes(bytes.get(start..).unwrap_or_default());
+    }
+
+    fn uint(&mut self, mut v: u64) {
+        let mut digits = [0u8; 20];
+        let mut i = digits.len();
+        loop {
+            i -= 1;
+            digits[i] = b'0' + (v % 10) as u8;
+            v /= 10;
+            if v == 0 {
+                break;
+            }
+        }
+        self.bytes(digits.get(i..).unwrap_or_default());
+    }
+
+    fn int(&mut self, v: i64) {
+        if v < 0 {
+            self.byte(b'-');
+        }
+        self.uint(v.unsigned_abs());
+    }
+
+    fn bool(&mut self, v: bool) {
+        self.bytes(if v { b"true" } else { b"false" });
+    }
+
+    /// Plain notation where it stays short, exponent notation elsewhere;
+    /// JSON has no NaN or infinity, so those become `null`.
+    fn f64(&mut self, v: f64) {
+        let a = v.abs();
+        if !v.is_finite() {
+            self.bytes(b"null");
+        } else if a == 0.0 || (1e-6..1e16).contains(&a) {
+            let _ = write!(self, "{v}");
+        } else {
+            let _ = write!(self, "{v:e}");
+        }
+    }
+
+    fn f32(&mut self, v: f32) {
+        let a = v.abs();
+        if !v.is_finite() {
+            self.bytes(b"null");
+        } else if a == 0.0 || (1e-6..1e16).contains(&a) {
+            let _ = write!(self, "{v}");
+        } else {
+            let _ = write!(self, "{v:e}");
+        }
+    }
+
+    fn serialize<T: Serialize + ?Sized>(&mut self, value: &T) {
+        if self.overflow {
+            return;
+        }
+        let rest = self.buf.get_mut(self.len..).unwrap_or_default();
+        match serde_json_core::to_slice(value, rest) {
+            Ok(n) => self.len += n,
+            Err(_) => self.overflow = true,
+        }
+    }
+
+    /// A writer over the same buffer, for a nested object or array.
+    fn reborrow(&mut self) -> Sink<'_> {
+        Sink {
+            buf: &mut *self.buf,
+            len: self.len,
+            overflow: self.overflow,
+        }
+    }
+
+    /// Takes over what a nested writer wrote.
+    fn resume(&mut self, (len, overflow): (usize, bool)) {
+        self.len = len;
+        self.overflow = overflow;
+    }
+}
+
+impl Write for Sink<'_> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        self.bytes(s.as_bytes());
+        Ok(())
+    }
+}
+
+/// Writes the members of a JSON object: the command-specific fields of a
+/// response, or the members of a nested object.
+///
+/// Keys and string values are escaped; numbers are written exactly (floats
+/// in their shortest round-trip form, non-finite ones as `null`).
+pub struct Fields<'b> {
+    sink: Sink<'b>,
+    first: bool,
+}
+
+/// Writes the elements of a JSON array.
+pub struct Items<'b> {
+    sink: Sink<'b>,
+    first: bool,
+}
+
+macro_rules! value_writers {
+    ($ty:ident, $lead:ident ($($key:ident: &str)?)) => {
+        impl $ty<'_> {
+            /// A string.
+            pub fn str(&mut self, $($key: &str,)? v: &str) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.string(&[v]);
+                self
+            }
+            /// A signed integer.
+            pub fn i64(&mut self, $($key: &str,)? v: i64) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.int(v);
+                self
+            }
+            /// An unsigned integer.
+            pub fn u64(&mut self, $($key: &str,)? v: u64) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.uint(v);
+                self
+            }
+            /// A double; NaN and infinities are written as `null`.
+            pub fn f64(&mut self, $($key: &str,)? v: f64) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.f64(v);
+                self
+            }
+            /// A float; NaN and infinities are written as `null`.
+            pub fn f32(&mut self, $($key: &str,)? v: f32) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.f32(v);
+                self
+            }
+            /// A boolean.
+            pub fn bool(&mut self, $($key: &str,)? v: bool) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.bool(v);
+                self
+            }
+            /// `null`.
+            pub fn null(&mut self $(, $key: &str)?) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.bytes(b"null");
+                self
+            }
+            /// Any serde-serialisable value, written by serde-json-core.
+            pub fn serialize<T: Serialize + ?Sized>(&mut self, $($key: &str,)? v: &T) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.serialize(v);
+                self
+            }
+            /// A nested object whose members `f` writes.
+            pub fn object(&mut self, $($key: &str,)? f: impl FnOnce(&mut Fields<'_>)) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.byte(b'{');
+                let mut inner = Fields { sink: self.sink.reborrow(), first: true };
+                f(&mut inner);
+                let state = (inner.sink.len, inner.sink.overflow);
+                self.sink.resume(state);
+                self.sink.byte(b'}');
+                self
+            }
+            /// A nested array whose elements `f` writes.
+            pub fn array(&mut self, $($key: &str,)? f: impl FnOnce(&mut Items<'_>)) -> &mut Self {
+                self.$lead($($key)?);
+                self.sink.byte(b'[');
+                let mut inner = Items { sink: self.sink.reborrow(), first: true };
+                f(&mut inner);
+                let state = (inner.sink.len, inner.sink.overflow);
+                self.sink.resume(state);
+                self.sink.byte(b']');
+                self
+            }
+        }
+    };
+}
+
+value_writers!(Fields, member(key: &str));
+value_writers!(Items, element());
+
+impl<'b> Fields<'b> {
+    /// A writer for the members that follow `"ts":..` in a response
+    /// written into `buf` from `start` on.
+    pub(crate) fn after_head(buf: &'b mut [u8], start: usize) -> Self {
+        Fields {
+            sink: Sink {
+                buf,
+                len: start,
+                overflow: false,
+            },
+            first: false,
+        }
+    }
+
+    fn member(&mut self, key: &str) {
+        if !core::mem::take(&mut self.first) {
+            self.sink.byte(b',');
+        }
+        self.sink.string(&[key]);
+        self.sink.byte(b':');
+    }
+
+    /// Whether everything written so far fitted.
+    pub fn fits(&self) -> bool {
+        !self.sink.overflow
+    }
+
+    /// The end of what was written, or `None` if something did not fit.
+    pub(crate) fn end(&self) -> Option<usize> {
+        self.fits().then_some(self.sink.len)
+    }
+}
+
+impl Items<'_> {
+    fn element(&mut self) {
+        if !core::mem::take(&mut self.first) {
+            self.sink.byte(b',');
+        }
+    }
+}
+
+/// Writes `{"ret":..,"cmd":..,"ts":..` and returns the head's length, or
+/// `None` if `buf` is too short.
+fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
+    let mut s = Sink {
+        buf,
+        len: 0,
+        overflow: false,
+    };
+    s.bytes(br#"{"ret":"#);
+    s.int(i64::from(ret.code()));
+    s.bytes(br#","cmd":"#);
+    s.uint(u64::from(cmd));
+    s.bytes(br#","ts":"#);
+    s.int(ts);
+    (!s.overflow).then_some(s.len)
+}
+
+/// Completes a response whose members were written by [`Fields::after_head`]
+/// from [`HEAD_RESERVE`] to `body_end`: writes the head, moves the members
+/// behind it and closes the object. Returns the response length, or `None`
+/// if it does not fit.
+pub(crate) fn finish_ok(buf: &mut [u8], cmd: u8, ts: i64, body_end: usize) -> Option<usize> {
+    let mut h = [0u8; HEAD_RESERVE];
+    let head_len = head(&mut h, Ret::Ok, cmd, ts)?;
+    let body = HEAD_RESERVE..body_end;
+    let body_len = body.len();
+    // The closing brace needs one byte after the body.
+    buf.get(body_end)?;
+    buf.copy_within(body, head_len);
+    buf.get_mut(..head_len)?.copy_from_slice(h.get(..head_len)?);
+    let end = head_len + body_len;
+    *buf.get_mut(end)? = b'}';
+    Some(end + 1)
+}
+
+/// Writes a whole error response `{"ret":..,"cmd":..,"ts":..,"msg":".."}`
+/// whose message is `parts` concatenated. `None` if `buf` is too short.
+pub(crate) fn write_error(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, parts: &[&str]) -> Option<usize> {
+    let len = head(buf, ret, cmd, ts)?;
+    let mut s = Sink {
+        buf,
+        len,
+        overflow: false,
+    };
+    s.bytes(br#","msg":"#);
+    s.string(parts);
+    s.byte(b'}');
+    (!s.overflow).then_some(s.len)
+}

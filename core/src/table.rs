@@ -1,0 +1,340 @@
+//! The command table: the one place that lists every command.
+//!
+//! Each row gives a command's stable id, its wire name, its argument
+//! [`Grammar`], its gate [`Flags`], its usage line and a one-line summary.
+//! Parsing, gating, `help`, the encoder, the clients and the tests all read
+//! this table; nothing else in the project lists commands.
+//!
+//! Ids follow DESIGN.md: `login` is 1, then every command in the order it
+//! first appears in the specification's Command Reference. 0 is reserved for
+//! "not a known command" and is never a [`CommandId`].
+
+/// The shape of a command's arguments, which decides how they are parsed,
+/// validated and encoded. Each grammar has exactly one [`crate::Args`]
+/// variant of the same name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Grammar {
+    /// No arguments at all.
+    None,
+    /// Exactly `0` or `1`.
+    Flag,
+    /// An optional unsigned decimal integer.
+    OptCount,
+    /// An integer PWM value, 0–65535.
+    Pwm,
+    /// A finite number ≥ 0.
+    Amount,
+    /// An optional finite number ≥ 0.
+    OptAmount,
+    /// A finite angle in degrees, -90..=90.
+    Angle,
+    /// A single path component (no `/`, `\`, `..`, NUL or control characters).
+    Name,
+    /// An optional single path component.
+    OptName,
+    /// A relative path made of single path components joined by `/`.
+    Path,
+    /// Free text: the rest of the frame.
+    Text,
+    /// A login password: the rest of the frame.
+    Secret,
+    /// A new login password: 1–32 printable ASCII characters, no space.
+    NewPassword,
+    /// A parameter name: 1–64 of `[A-Za-z0-9_.-]`.
+    ParamName,
+    /// `name:value`, split at the first colon.
+    SetParam,
+    /// `x:y:z:yaw`, four finite numbers.
+    Setpoint,
+    /// `x:y:z`, three finite numbers.
+    Point,
+    /// `x,y,z,yaw`, four finite numbers.
+    Pose,
+    /// `h1,h2,... [lx,ly,lyaw]`: heights, then optionally a landing point.
+    Zyhk,
+    /// `ext_id:path_or_json`, split at the first colon.
+    Mission,
+    /// `ext_id:id,id,...`, split at the first colon.
+    MwExec,
+    /// `task_id:mission_file`, split at the first colon.
+    Ai1Mission,
+}
+
+/// Gate flags of one command (DESIGN.md, "Sessions and gates").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Flags {
+    /// `runOnArm`: the command may run while the vehicle is armed.
+    pub run_on_arm: bool,
+    /// `runInLock`: a non-admin session may run it in lock mode.
+    pub run_in_lock: bool,
+    /// Only an admin session may run it.
+    pub admin_only: bool,
+}
+
+impl Flags {
+    /// The default: runs armed, runs in lock mode, open to every session.
+    const OPEN: Flags = Flags {
+        run_on_arm: true,
+        run_in_lock: true,
+        admin_only: false,
+    };
+}
+
+/// Everything the protocol knows about one command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Spec {
+    /// The stable id sent as `cmd`.
+    pub id: CommandId,
+    /// The name on the wire.
+    pub name: &'static str,
+    /// How the arguments are written.
+    pub grammar: Grammar,
+    /// Gate flags.
+    pub flags: Flags,
+    /// The usage line, e.g. `set_sp_ned x:y:z:yaw`.
+    pub usage: &'static str,
+    /// One line saying what the command does.
+    pub summary: &'static str,
+}
+
+// `NO_ARM` = runOnArm=false, `NO_LOCK` = runInLock=false, `ADMIN` = admin only.
+macro_rules! flags {
+    () => { Flags::OPEN };
+    (NO_ARM $($rest:ident)*) => { Flags { run_on_arm: false, ..flags!($($rest)*) } };
+    (NO_LOCK $($rest:ident)*) => { Flags { run_in_lock: false, ..flags!($($rest)*) } };
+    (ADMIN $($rest:ident)*) => { Flags { admin_only: true, ..flags!($($rest)*) } };
+}
+
+macro_rules! command_table {
+    ($( $id:literal $variant:ident $name:literal $grammar:ident [$($flag:ident)*] $usage:literal $summary:literal; )*) => {
+        /// A known command. The discriminant is the id sent as `cmd`.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        #[repr(u8)]
+        pub enum CommandId {
+            $( #[doc = $summary] $variant = $id, )*
+        }
+
+        /// The command table, in id order: `TABLE[id - 1]` describes `id`.
+        pub static TABLE: [Spec; [$($id),*].len()] = [
+            $( Spec {
+                id: CommandId::$variant,
+                name: $name,
+                grammar: Grammar::$grammar,
+                flags: flags!($($flag)*),
+                usage: $usage,
+                summary: $summary,
+            }, )*
+        ];
+    };
+}
+
+command_table! {
+    1 Login "login" Secret [] "login <password>" "Log this session in (1025: admin, 0315: log out).";
+    // State & Telemetry
+    2 State "state" None [] "state" "Full FSM state.";
+    3 Param "param" None [] "param" "All parameters.";
+    4 GetParam "get_param" ParamName [] "get_param name" "One parameter.";
+    5 Ver "ver" None [] "ver" "Version information.";
+    6 Sysinfo "sysinfo" None [] "sysinfo" "Uptime, RAM and loads.";
+    7 Diskusage "diskusage" None [] "diskusage" "Free disk space.";
+    8 Statics "statics" None [] "statics" "Communication and recording statistics.";
+    9 Machineid "machineid" None [] "machineid" "Unique hardware id.";
+    10 Hud1 "hud1" None [] "hud1" "Keyframes, ENU position and extras.";
+    11 Lidarpose "lidarpose" None [] "lidarpose" "Lidar pose.";
+    12 ApronState "apron_state" None [] "apron_state" "Charging pad status.";
+    13 MavlinkMsgs "mavlink_msgs" None [] "mavlink_msgs" "MAVLink message counts.";
+    14 GetSubmapInfo "get_submap_info" None [] "get_submap_info" "Map id and keyframe count.";
+    15 ShowSp "show_sp" None [] "show_sp" "Current setpoint.";
+    16 ShowApguid2 "show_apguid2" None [] "show_apguid2" "Autopilot guid2.";
+    17 Showmsg "showmsg" OptCount [] "showmsg [count]" "Recent log messages.";
+    // Flight Control
+    18 Takeoff "takeoff" None [NO_ARM] "takeoff" "Take off.";
+    19 Land "land" None [] "land" "Emergency land.";
+    20 Rtl "rtl" None [] "rtl" "Return to launch.";
+    21 Mrtl "mrtl" None [] "mrtl" "Mission return to launch.";
+    22 TetherLand "tether_land" None [] "tether_land" "Tethered landing.";
+    23 SetSpNed "set_sp_ned" Setpoint [] "set_sp_ned x:y:z:yaw" "Set the NED setpoint (metres, radians).";
+    24 Tunnelfly "tunnelfly" Flag [] "tunnelfly 0|1" "Tunnel fly mode off/on.";
+    25 Disarm "disarm" None [] "disarm" "Force disarm.";
+    26 Sleep "sleep" None [NO_ARM] "sleep" "Enter sleep mode.";
+    27 Wakeup "wakeup" None [] "wakeup" "Wake from sleep.";
+    28 AutosleepEnable "autosleep_enable" Flag [NO_ARM NO_LOCK] "autosleep_enable 0|1" "Auto-sleep off/on.";
+    29 Zyhk "zyhk" Zyhk [] "zyhk h1,h2,... [lx,ly,lyaw]" "Hover at several heights, then land.";
+    30 RelocatePos "relocate_pos" Pose [NO_ARM] "relocate_pos x,y,z,yaw" "Relocate the position (needs map_locate).";
+    // Mission Management
+    31 Mission "mission" Mission [] "mission ext_id:path_or_json" "Submit a mission.";
+    32 Plan "plan" Text [] "plan plan_string" "Start a flight plan.";
+    33 UnlockPlan "unlock_plan" None [NO_LOCK] "unlock_plan" "Clear the plan execution lock.";
+    34 MwList "mw_list" None [] "mw_list" "List mission waypoints.";
+    35 MwExec "mw_exec" MwExec [] "mw_exec ext_id:id,id,..." "Execute waypoints by id.";
+    36 Ai1Mission "ai1_mission" Ai1Mission [] "ai1_mission task_id:mission_file" "Submit an AI1 mission.";
+    37 ObsMission "obs_mission" Flag [] "obs_mission 0|1" "Obstacle mission live mode off/on.";
+    38 DumpMissionresult "dump_missionresult" OptCount [] "dump_missionresult [ext_id]" "Dump a mission result.";
+    39 DumpMissionlist "dump_missionlist" None [] "dump_missionlist" "Dump the short mission request list.";
+    40 AbortReport "abort_report" OptCount [] "abort_report [abort_id]" "Abort or finish a mission report.";
+    41 SetTaskname "set_taskname" Text [] "set_taskname name" "Set the current task name.";
+    // Map Management
+    42 Savemap "savemap" Name [NO_ARM NO_LOCK] "savemap name" "Save the current map.";
+    43 SetMaplocate "set_maplocate" Flag [NO_ARM NO_LOCK] "set_maplocate 0|1" "Map localisation off/on.";
+    44 SetMappath "set_mappath" Path [NO_ARM NO_LOCK] "set_mappath path" "Set the localisation map path.";
+    45 ListMaps "list_maps" None [] "list_maps" "List saved maps.";
+    46 RmMap "rm_map" Name [NO_ARM NO_LOCK] "rm_map name" "Remove a saved map.";
+    // Camera & Recording
+    47 Capture "capture" None [] "capture" "Capture an RGB and infrared photo.";
+    48 Snapshot "snapshot" None [] "snapshot" "System snapshot.";
+    49 Record "record" None [] "record" "Toggle video recording.";
+    50 Savebag "savebag" Flag [] "savebag 0|1" "Stop/start bag recording.";
+    51 SiyiReboot "siyi_reboot" None [NO_ARM NO_LOCK] "siyi_reboot" "Reboot the SIYI camera/gimbal.";
+    52 SiyiFormat "siyi_format" None [NO_ARM NO_LOCK] "siyi_format" "Format the SIYI SD card.";
+    53 SiyiCenter "siyi_center" None [] "siyi_center" "Center the SIYI gimbal.";
+    54 SiyiInit "siyi_init" None [NO_ARM NO_LOCK] "siyi_init" "Initialise SIYI (close HDMI).";
+    55 SiyiDownvideo "siyi_downvideo" OptCount [NO_ARM] "siyi_downvideo [vid]" "Download the latest video.";
+    56 SiyiSync "siyi_sync" None [] "siyi_sync" "Trigger SIYI sync.";
+    // LED Control
+    57 Ledon "ledon" None [] "ledon" "LED on.";
+    58 Ledoff "ledoff" None [] "ledoff" "LED off.";
+    59 Ledenable "ledenable" None [] "ledenable" "Enable LED control.";
+    60 Leddisable "leddisable" None [] "leddisable" "Disable LED control.";
+    61 Ledpwm "ledpwm" Pwm [] "ledpwm pwm" "Set the LED PWM value (0-65535).";
+    62 LedBlink "led_blink" None [] "led_blink" "Start LED blinking.";
+    // Parameter Management
+    63 SetParam "set_param" SetParam [NO_ARM NO_LOCK] "set_param name:value" "Set a parameter.";
+    64 ResetParam "reset_param" None [NO_ARM NO_LOCK] "reset_param" "Reset all parameters to defaults.";
+    65 SaveParam "save_param" Flag [NO_ARM NO_LOCK] "save_param 0|1" "Save parameters persistently.";
+    66 Passwd "passwd" NewPassword [NO_LOCK] "passwd new_password" "Change the login password.";
+    // Apron (Charging Pad)
+    67 ApronVol "apron_vol" Amount [NO_ARM NO_LOCK] "apron_vol voltage" "Set the charging voltage.";
+    68 ApronAmp "apron_amp" Amount [NO_ARM NO_LOCK] "apron_amp amperage" "Set the charging current.";
+    // System Management
+    69 RebootNode "reboot_node" None [NO_ARM NO_LOCK] "reboot_node" "Reboot the flight control node.";
+    70 RebootAp "reboot_ap" None [NO_ARM NO_LOCK] "reboot_ap" "Reboot the autopilot.";
+    71 RebootSystem "reboot_system" None [NO_ARM NO_LOCK] "reboot_system" "Reboot the onboard computer.";
+    72 PoweroffSystem "poweroff_system" None [NO_ARM NO_LOCK] "poweroff_system" "Power off the onboard computer.";
+    73 PreparePoweroff "prepare_poweroff" None [NO_ARM NO_LOCK] "prepare_poweroff" "Flush logs before power-off.";
+    74 RebootDlo "reboot_dlo" None [NO_ARM NO_LOCK] "reboot_dlo" "Reboot DLO.";
+    75 RestartDlo "restart_dlo" None [NO_ARM NO_LOCK] "restart_dlo" "Restart the DLO pipeline.";
+    76 KillLivox "kill_livox" OptName [NO_ARM NO_LOCK] "kill_livox [script]" "Kill the Livox driver.";
+    // Lidar & Perception
+    77 Lidaronoff "lidaronoff" Flag [NO_ARM NO_LOCK] "lidaronoff 0|1" "Lidar off/on.";
+    78 Lidarwarn "lidarwarn" None [] "lidarwarn" "Lidar warning zones.";
+    79 UtgGet "utg_get" None [] "utg_get" "Trigger a UTG thickness read.";
+    80 UtgSet "utg_set" Amount [] "utg_set speed" "Set the UTG sonic speed.";
+    // Other
+    81 GrabberCtrl "grabber_ctrl" Pwm [] "grabber_ctrl pwm" "Set the grabber PWM value (0-65535).";
+    82 Ara8Center "ara8_center" None [] "ara8_center" "ARA8 to center mode.";
+    83 Ara8Pitch "ara8_pitch" Angle [] "ara8_pitch angle" "Set the ARA8 pitch (-90..90).";
+    84 CvTest "cv_test" None [NO_ARM NO_LOCK] "cv_test" "Trigger a CV server test.";
+    85 PreflightCheck "preflight_check" None [NO_ARM] "preflight_check" "Run the preflight checks.";
+    86 PreflightEnable "preflight_enable" Flag [NO_ARM NO_LOCK] "preflight_enable 0|1" "Preflight checks before takeoff off/on.";
+    87 ClearBags "clear_bags" OptAmount [NO_ARM NO_LOCK] "clear_bags [min_gb]" "Clear old bag files.";
+    88 ClearImages "clear_images" OptAmount [NO_ARM NO_LOCK] "clear_images [min_gb]" "Clear old images.";
+    89 ListImagedir "list_imagedir" OptCount [] "list_imagedir [size]" "List image directories.";
+    90 RmImagedir "rm_imagedir" Name [NO_ARM NO_LOCK] "rm_imagedir name" "Remove an image directory.";
+    91 TestWp "test_wp" Point [] "test_wp x:y:z" "Test waypoint reachability.";
+    92 TestListwp "test_listwp" Path [] "test_listwp file_path" "Test a waypoint list from a file.";
+    93 TestNotif "test_notif" None [] "test_notif" "Test the notification server.";
+    94 Savemsg "savemsg" None [] "savemsg" "Save messages to the log.";
+    95 BmsSetpower "bms_setpower" Flag [NO_ARM NO_LOCK] "bms_setpower 0|1" "BMS power output off/on.";
+    96 BmsSetcharge "bms_setcharge" Flag [NO_ARM NO_LOCK] "bms_setcharge 0|1" "BMS charging off/on.";
+    97 Help "help" None [] "help" "List the commands.";
+    98 AdminLock "admin_lock" None [ADMIN] "admin_lock" "Enable the vehicle-wide lock (admin only).";
+    99 AdminUnlock "admin_unlock" None [ADMIN] "admin_unlock" "Disable the vehicle-wide lock (admin only).";
+}
+
+// The table is indexed by `id - 1`; a row out of order would break `spec()`.
+const _: () = {
+    let mut i = 0;
+    while i < TABLE.len() {
+        assert!(TABLE[i].id as usize == i + 1, "TABLE rows must be in id order");
+        i += 1;
+    }
+};
+
+/// Row indices of [`TABLE`] sorted by name, for binary search.
+static BY_NAME: [u8; TABLE.len()] = sorted_by_name();
+
+const fn name_less(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    let mut i = 0;
+    while i < a.len() && i < b.len() {
+        if a[i] != b[i] {
+            return a[i] < b[i];
+        }
+        i += 1;
+    }
+    a.len() < b.len()
+}
+
+const fn sorted_by_name() -> [u8; TABLE.len()] {
+    let mut order = [0u8; TABLE.len()];
+    let mut i = 0;
+    while i < order.len() {
+        order[i] = i as u8;
+        i += 1;
+    }
+    // Insertion sort: 99 rows, run once at compile time.
+    let mut i = 1;
+    while i < order.len() {
+        let mut j = i;
+        while j > 0 && name_less(TABLE[order[j] as usize].name, TABLE[order[j - 1] as usize].name) {
+            let t = order[j];
+            order[j] = order[j - 1];
+            order[j - 1] = t;
+            j -= 1;
+        }
+        i += 1;
+    }
+    // Duplicate names would make lookup ambiguous.
+    let mut i = 1;
+    while i < order.len() {
+        assert!(
+            name_less(TABLE[order[i - 1] as usize].name, TABLE[order[i] as usize].name),
+            "command names must be unique"
+        );
+        i += 1;
+    }
+    order
+}
+
+/// Finds a command by its wire name (exact, case-sensitive).
+pub fn lookup(name: &str) -> Option<&'static Spec> {
+    let index = BY_NAME
+        .binary_search_by(|&row| {
+            TABLE
+                .get(usize::from(row))
+                .map_or(core::cmp::Ordering::Less, |spec| spec.name.cmp(name))
+        })
+        .ok()?;
+    let row = BY_NAME.get(index)?;
+    TABLE.get(usize::from(*row))
+}
+
+impl CommandId {
+    /// The command with this id, if any (0 and ids past the table are none).
+    pub fn from_u8(id: u8) -> Option<CommandId> {
+        TABLE.get(usize::from(id).checked_sub(1)?).map(|s| s.id)
+    }
+
+    /// The table row of this command.
+    pub fn spec(self) -> &'static Spec {
+        // The const check above proves `TABLE[id - 1].id == id` for every
+        // variant, so this index is always in bounds.
+        &TABLE[self as usize - 1]
+    }
+
+    /// The wire name.
+    pub fn name(self) -> &'static str {
+        self.spec().name
+    }
+
+    /// Finds a command by its wire name.
+    pub fn from_name(name: &str) -> Option<CommandId> {
+        lookup(name).map(|s| s.id)
+    }
+}
+
+impl From<CommandId> for u8 {
+    fn from(id: CommandId) -> u8 {
+        id as u8
+    }
+}
