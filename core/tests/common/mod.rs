@@ -1,0 +1,120 @@
+//! A deterministic backend and helpers shared by the core's tests.
+#![allow(dead_code)]
+
+use lluav_core::{
+    Args, Auth, Backend, Command, CommandId, Context, Failure, Fields, Message, Outcome, Server, Session,
+};
+
+/// Fixed clock value for every response.
+pub const TS: i64 = 1_714_233_600_000;
+
+/// A vehicle whose armed state the test sets, and which records what ran.
+#[derive(Default)]
+pub struct MockVehicle {
+    pub armed: bool,
+    pub executed: Vec<CommandId>,
+    /// Make the next execute fail with this.
+    pub fail_with: Option<Failure>,
+    /// Make `state` write this many filler bytes.
+    pub filler: usize,
+    pub saved_password: Option<String>,
+}
+
+impl Backend for MockVehicle {
+    fn armed(&self) -> bool {
+        self.armed
+    }
+
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+        self.executed.push(cmd.id());
+        if let Some(f) = self.fail_with.take() {
+            out.str("partial", "must be discarded");
+            return Err(f);
+        }
+        match (cmd.id(), cmd.args()) {
+            (CommandId::State, _) => {
+                out.object("state", |s| {
+                    s.bool("armed", self.armed).str("fsm", "idle").bool("lock_mode", ctx.lock_mode);
+                });
+                for _ in 0..self.filler {
+                    out.str("x", "0123456789");
+                }
+            }
+            (CommandId::SetSpNed, Args::Setpoint(p)) => {
+                out.f32("x", p.x).f32("y", p.y).f32("z", p.z).f32("yaw", p.yaw);
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn password_changed(&mut self, new: &str) -> Result<(), Failure> {
+        self.saved_password = Some(new.to_owned());
+        Ok(())
+    }
+}
+
+pub fn clock() -> i64 {
+    TS
+}
+
+pub type TestServer = Server<MockVehicle, fn() -> i64>;
+
+pub fn server(password: Option<&str>) -> TestServer {
+    Server::new(MockVehicle::default(), clock as fn() -> i64, Auth::new(password).unwrap())
+}
+
+/// What the client saw for one frame.
+#[derive(Debug, PartialEq)]
+pub enum Seen {
+    Reply(serde_json::Value),
+    ReplyThenClose(serde_json::Value, u16),
+    Close(u16),
+}
+
+impl Seen {
+    pub fn json(&self) -> &serde_json::Value {
+        match self {
+            Seen::Reply(v) | Seen::ReplyThenClose(v, _) => v,
+            Seen::Close(c) => panic!("expected a reply, got close {c}"),
+        }
+    }
+    pub fn ret(&self) -> i64 {
+        self.json()["ret"].as_i64().expect("integer ret")
+    }
+    pub fn cmd(&self) -> i64 {
+        self.json()["cmd"].as_i64().expect("integer cmd")
+    }
+    pub fn msg(&self) -> &str {
+        self.json()["msg"].as_str().unwrap_or("")
+    }
+}
+
+/// Parses a reply as exactly one JSON object with integer ret, cmd and ts.
+pub fn checked_json(reply: &str) -> serde_json::Value {
+    let v: serde_json::Value =
+        serde_json::from_str(reply).unwrap_or_else(|e| panic!("not JSON ({e}): {reply:?}"));
+    let obj = v.as_object().unwrap_or_else(|| panic!("not an object: {reply}"));
+    assert!(obj["ret"].is_i64(), "ret: {reply}");
+    assert!(obj["cmd"].is_u64(), "cmd: {reply}");
+    assert!(obj["ts"].is_i64(), "ts: {reply}");
+    let (r, c, t) = (reply.find(r#""ret":"#), reply.find(r#","cmd":"#), reply.find(r#","ts":"#));
+    assert!(
+        r == Some(1) && c > r && t > c,
+        "ret, cmd and ts lead, in that order: {reply}"
+    );
+    v
+}
+
+pub fn send_bytes(server: &mut TestServer, session: &mut Session, msg: Message<'_>) -> Seen {
+    let mut out = vec![0u8; 64 * 1024];
+    match server.handle(session, msg, &mut out) {
+        Outcome::Reply(r) => Seen::Reply(checked_json(r)),
+        Outcome::ReplyThenClose(r, c) => Seen::ReplyThenClose(checked_json(r), c.code()),
+        Outcome::Close(c) => Seen::Close(c.code()),
+    }
+}
+
+pub fn send(server: &mut TestServer, session: &mut Session, frame: &str) -> Seen {
+    send_bytes(server, session, Message::Text(frame.as_bytes()))
+}
