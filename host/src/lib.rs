@@ -1,6 +1,5 @@
-//! LLUAV on the host (tokio): the `lluavd` daemon and the `lluav` client.
-//!
-//! This crate is a placeholder member of the workspace: the daemon and the
-//! client are tracked by their own issue.
+//! LLUAV on the host (tokio): the `lluavd` daemon, its simulated vehicle and
+//! the `lluav` client library.
 
-pub use lluav_core as core_protocol;
+pub mod recent_log;
+pub mod sim;

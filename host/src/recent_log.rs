@@ -1,0 +1,1 @@
+//! The daemon's recent log messages, for `showmsg` and `savemsg`.

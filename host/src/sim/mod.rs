@@ -1,0 +1,1 @@
+//! The simulated vehicle: the default backend of `lluavd`.
