@@ -2,7 +2,8 @@
 #![allow(dead_code)]
 
 use lluav_core::{
-    Args, Auth, Backend, Command, CommandId, Context, Failure, Fields, Message, Outcome, Server, Session,
+    Args, Auth, Backend, Command, CommandId, Context, Failure, Fields, Grammar, Message, Outcome, Server,
+    Session,
 };
 
 /// Fixed clock value for every response.
@@ -34,7 +35,9 @@ impl Backend for MockVehicle {
         match (cmd.id(), cmd.args()) {
             (CommandId::State, _) => {
                 out.object("state", |s| {
-                    s.bool("armed", self.armed).str("fsm", "idle").bool("lock_mode", ctx.lock_mode);
+                    s.bool("armed", self.armed)
+                        .str("fsm", "idle")
+                        .bool("lock_mode", ctx.lock_mode);
                 });
                 for _ in 0..self.filler {
                     out.str("x", "0123456789");
@@ -61,7 +64,11 @@ pub fn clock() -> i64 {
 pub type TestServer = Server<MockVehicle, fn() -> i64>;
 
 pub fn server(password: Option<&str>) -> TestServer {
-    Server::new(MockVehicle::default(), clock as fn() -> i64, Auth::new(password).unwrap())
+    Server::new(
+        MockVehicle::default(),
+        clock as fn() -> i64,
+        Auth::new(password).unwrap(),
+    )
 }
 
 /// What the client saw for one frame.
@@ -98,7 +105,11 @@ pub fn checked_json(reply: &str) -> serde_json::Value {
     assert!(obj["ret"].is_i64(), "ret: {reply}");
     assert!(obj["cmd"].is_u64(), "cmd: {reply}");
     assert!(obj["ts"].is_i64(), "ts: {reply}");
-    let (r, c, t) = (reply.find(r#""ret":"#), reply.find(r#","cmd":"#), reply.find(r#","ts":"#));
+    let (r, c, t) = (
+        reply.find(r#""ret":"#),
+        reply.find(r#","cmd":"#),
+        reply.find(r#","ts":"#),
+    );
     assert!(
         r == Some(1) && c > r && t > c,
         "ret, cmd and ts lead, in that order: {reply}"
@@ -117,4 +128,46 @@ pub fn send_bytes(server: &mut TestServer, session: &mut Session, msg: Message<'
 
 pub fn send(server: &mut TestServer, session: &mut Session, frame: &str) -> Seen {
     send_bytes(server, session, Message::Text(frame.as_bytes()))
+}
+
+/// Valid argument strings per grammar (`None` = no arguments).
+pub fn valid_args(g: Grammar) -> Vec<Option<String>> {
+    let s = |v: &[&str]| v.iter().map(|a| Some(a.to_string())).collect::<Vec<_>>();
+    match g {
+        Grammar::None => vec![None],
+        Grammar::Flag => s(&["0", "1"]),
+        Grammar::OptCount => [vec![None], s(&["0", "7", "4294967295"])].concat(),
+        Grammar::Pwm => s(&["0", "1500", "65535"]),
+        Grammar::Amount => s(&["0", "12.5", "1e-3", "24"]),
+        Grammar::OptAmount => [vec![None], s(&["0", "2.5"])].concat(),
+        Grammar::Angle => s(&["-90", "90", "0.5", "-45.25"]),
+        Grammar::Name => s(&["map_1", "a b", "x.y", "..a", "é"]),
+        Grammar::OptName => [vec![None], s(&["start.sh"])].concat(),
+        Grammar::Path => s(&["a", "dir/file.json", "a b/c..d"]),
+        Grammar::Text => s(&["survey-7", "anything: {goes} here", " leading space kept"]),
+        Grammar::Secret => s(&["pw", "with space"]),
+        Grammar::NewPassword => s(&["n3w!Pass", &"x".repeat(32)]),
+        Grammar::ParamName => s(&["MPC_XY_VEL_MAX", "a.b-c"]),
+        Grammar::SetParam => s(&["takeoff_alt:2.5", "name:a:b", "x:hello world"]),
+        Grammar::Setpoint => s(&["1.0:2.0:-3.0:0.5", "1:2:3:4", "-1e-3:+2:.5:5."]),
+        Grammar::Point => s(&["10.0:5.0:-2.0", "0:0:0"]),
+        Grammar::Pose => s(&["1,2,3,0.5", "-1.5,0,2e1,3.14"]),
+        Grammar::Zyhk => s(&["1.5,2.0,2.5", "1.5 0,0,0", "1", &vec!["1"; 32].join(",")]),
+        Grammar::Mission => s(&[
+            r#"1001:{"waypoints":[{"x":1,"y":2,"z":-3}]}"#,
+            "1001:[]",
+            r#"7:{ "a" : [ true, false, null, -0.5e+3, "\u00e9\n" ] }"#,
+            "7:missions/a.json",
+        ]),
+        Grammar::MwExec => s(&["1001:1,2,3,5", "0:0", &format!("1:{}", vec!["9"; 64].join(","))]),
+        Grammar::Ai1Mission => s(&["task-1:missions/a.json", "T_2:f"]),
+    }
+}
+
+/// The frame for `name` with optional arguments.
+pub fn frame(name: &str, args: &Option<String>) -> String {
+    match args {
+        Some(a) => format!("{name} {a}"),
+        None => name.to_string(),
+    }
 }

@@ -1,0 +1,200 @@
+//! The command table against the contract: the specification's commands and
+//! DESIGN.md's ids and gate lists.
+
+use lluav_core::{CommandId, TABLE, table};
+
+/// DESIGN.md, "Sessions and gates": runOnArm=false.
+const NOT_WHILE_ARMED: &[&str] = &[
+    "takeoff",
+    "sleep",
+    "autosleep_enable",
+    "relocate_pos",
+    "savemap",
+    "set_maplocate",
+    "set_mappath",
+    "rm_map",
+    "siyi_reboot",
+    "siyi_format",
+    "siyi_init",
+    "siyi_downvideo",
+    "set_param",
+    "reset_param",
+    "save_param",
+    "apron_vol",
+    "apron_amp",
+    "reboot_node",
+    "reboot_ap",
+    "reboot_system",
+    "poweroff_system",
+    "prepare_poweroff",
+    "reboot_dlo",
+    "restart_dlo",
+    "kill_livox",
+    "lidaronoff",
+    "cv_test",
+    "preflight_check",
+    "preflight_enable",
+    "clear_bags",
+    "clear_images",
+    "rm_imagedir",
+    "bms_setpower",
+    "bms_setcharge",
+];
+
+/// DESIGN.md, "Sessions and gates": runInLock=false.
+const NOT_IN_LOCK: &[&str] = &[
+    "set_param",
+    "reset_param",
+    "save_param",
+    "passwd",
+    "savemap",
+    "set_maplocate",
+    "set_mappath",
+    "rm_map",
+    "rm_imagedir",
+    "clear_bags",
+    "clear_images",
+    "siyi_reboot",
+    "siyi_format",
+    "siyi_init",
+    "apron_vol",
+    "apron_amp",
+    "reboot_node",
+    "reboot_ap",
+    "reboot_system",
+    "poweroff_system",
+    "prepare_poweroff",
+    "reboot_dlo",
+    "restart_dlo",
+    "kill_livox",
+    "lidaronoff",
+    "preflight_enable",
+    "autosleep_enable",
+    "unlock_plan",
+    "cv_test",
+    "bms_setpower",
+    "bms_setcharge",
+];
+
+/// The commands that must reach the vehicle whatever the gates.
+pub const SAFETY: &[&str] = &["land", "rtl", "mrtl", "tether_land", "disarm", "set_sp_ned"];
+
+#[test]
+fn table_holds_login_and_the_98_commands_of_the_reference_in_id_order() {
+    assert_eq!(TABLE.len(), 99);
+    for (i, spec) in TABLE.iter().enumerate() {
+        assert_eq!(usize::from(u8::from(spec.id)), i + 1, "{}", spec.name);
+        assert_eq!(CommandId::from_u8(u8::from(spec.id)), Some(spec.id));
+        assert_eq!(table::lookup(spec.name).map(|s| s.id), Some(spec.id));
+        assert_eq!(CommandId::from_name(spec.name), Some(spec.id));
+        assert!(
+            spec.usage.starts_with(spec.name),
+            "usage names the command: {}",
+            spec.usage
+        );
+        assert!(!spec.summary.is_empty());
+    }
+    assert_eq!(CommandId::from_u8(0), None, "0 means unknown");
+    assert_eq!(CommandId::from_u8(100), None);
+}
+
+#[test]
+fn ids_follow_the_first_appearance_in_the_spec() {
+    let expect = [
+        ("login", 1),
+        ("state", 2),
+        ("param", 3),
+        ("get_param", 4),
+        ("showmsg", 17),
+        ("takeoff", 18),
+        ("set_sp_ned", 23),
+        ("mission", 31),
+        ("siyi_format", 52),
+        ("set_param", 63),
+        ("passwd", 66),
+        ("help", 97),
+        ("admin_unlock", 99),
+    ];
+    for (name, id) in expect {
+        assert_eq!(CommandId::from_name(name).map(u8::from), Some(id), "{name}");
+    }
+}
+
+#[test]
+fn every_command_of_the_spec_reference_is_in_the_table() {
+    let spec = include_str!("../../docs/lluav-websocket-protocol.md");
+    let reference = spec
+        .split("## Command Reference")
+        .nth(1)
+        .expect("the spec has a Command Reference");
+    let mut seen = Vec::new();
+    for line in reference.lines() {
+        let Some(rest) = line.strip_prefix("| ") else {
+            continue;
+        };
+        let name = rest.split(' ').next().unwrap_or("");
+        let is_command = !name.is_empty()
+            && name
+                .bytes()
+                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
+            && !["ret", "cmd", "ts"].contains(&name);
+        if is_command && !seen.contains(&name) {
+            seen.push(name);
+        }
+    }
+    let mut names: Vec<&str> = vec!["login"];
+    names.extend(seen);
+    let table: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
+    assert_eq!(
+        table, names,
+        "the table lists the spec's commands in the spec's order"
+    );
+}
+
+#[test]
+fn lookup_is_exact_and_case_sensitive() {
+    for name in ["", "STATE", "state ", " state", "stat", "states", "land\0"] {
+        assert_eq!(table::lookup(name), None, "{name:?}");
+    }
+}
+
+#[test]
+fn gate_flags_match_design() {
+    for spec in &TABLE {
+        assert_eq!(
+            spec.flags.run_on_arm,
+            !NOT_WHILE_ARMED.contains(&spec.name),
+            "runOnArm of {}",
+            spec.name
+        );
+        assert_eq!(
+            spec.flags.run_in_lock,
+            !NOT_IN_LOCK.contains(&spec.name),
+            "runInLock of {}",
+            spec.name
+        );
+        assert_eq!(
+            spec.flags.admin_only,
+            ["admin_lock", "admin_unlock"].contains(&spec.name),
+            "admin-only of {}",
+            spec.name
+        );
+    }
+    for name in NOT_WHILE_ARMED.iter().chain(NOT_IN_LOCK) {
+        assert!(
+            table::lookup(name).is_some(),
+            "DESIGN names an unknown command {name}"
+        );
+    }
+}
+
+#[test]
+fn safety_commands_are_never_gated_by_arm_or_lock() {
+    for name in SAFETY {
+        let spec = table::lookup(name).expect("safety command exists");
+        assert!(
+            spec.flags.run_on_arm && spec.flags.run_in_lock && !spec.flags.admin_only,
+            "{name}"
+        );
+    }
+}
