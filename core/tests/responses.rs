@@ -255,3 +255,8 @@ fn help_fits_the_2_kib_mcu_response_buffer() {
     };
     assert_eq!(checked_json(r)["ret"], 0);
 }
+
+#[test]
+fn the_minimum_capacity_is_the_documented_270_bytes() {
+    assert_eq!(MIN_RESPONSE_CAPACITY, 270, "README.md states this figure");
+}
