@@ -1,0 +1,162 @@
+//! The connection code over an in-memory stream that delivers the peer's
+//! bytes in pieces of a chosen size, so frame boundaries fall anywhere.
+
+mod support;
+
+use embedded_io_async::{ErrorKind, ErrorType, Read, Write};
+use lluav_embedded::{Buffers, Connection, Echo, Error};
+use support::{KEY, block_on, masked, op, parse_server_frame, upgrade_request};
+
+/// Gives out `input` at most `piece` bytes per read; collects what is written.
+struct Pieces {
+    input: Vec<u8>,
+    at: usize,
+    piece: usize,
+    output: Vec<u8>,
+}
+
+impl ErrorType for Pieces {
+    type Error = ErrorKind;
+}
+
+impl Read for Pieces {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, ErrorKind> {
+        let n = buf.len().min(self.piece).min(self.input.len() - self.at);
+        buf[..n].copy_from_slice(&self.input[self.at..self.at + n]);
+        self.at += n;
+        Ok(n)
+    }
+}
+
+impl Write for Pieces {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, ErrorKind> {
+        self.output.extend_from_slice(buf);
+        Ok(buf.len())
+    }
+
+    async fn flush(&mut self) -> Result<(), ErrorKind> {
+        Ok(())
+    }
+}
+
+/// A frame the adapter sent: opcode and payload.
+type Sent = (u8, Vec<u8>);
+
+/// Runs the echo service over `input` cut into `piece`-byte reads; returns
+/// how the connection ended and the frames it sent after the `101`.
+fn echo(input: &[u8], piece: usize) -> (Result<u16, Error<ErrorKind>>, Vec<Sent>) {
+    let mut io = Pieces {
+        input: input.to_vec(),
+        at: 0,
+        piece,
+        output: Vec::new(),
+    };
+    let (mut raw, mut message, mut response, mut transmit) = ([0; 512], [0; 1024], [0; 1024], [0; 1024]);
+    let buffers = Buffers {
+        raw: &mut raw,
+        message: &mut message,
+        response: &mut response,
+        transmit: &mut transmit,
+    };
+    let mut conn = Connection::new(buffers, None);
+    let ended = block_on(async {
+        conn.accept(&mut io).await?;
+        conn.run(&mut io, &Echo).await
+    });
+    let head_end = io
+        .output
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .map_or(0, |i| i + 4);
+    let mut rest = &io.output[head_end..];
+    let mut frames = Vec::new();
+    while let Some((frame, used)) = parse_server_frame(rest) {
+        frames.push((frame.opcode, frame.payload));
+        rest = &rest[used..];
+    }
+    (ended, frames)
+}
+
+fn session(frames: &[Vec<u8>]) -> Vec<u8> {
+    let mut input = upgrade_request(&format!("Sec-WebSocket-Key: {KEY}\r\n")).into_bytes();
+    for f in frames {
+        input.extend_from_slice(f);
+    }
+    input
+}
+
+#[test]
+fn fragmented_message_is_reassembled_however_the_bytes_are_cut() {
+    let input = session(&[
+        masked(false, op::TEXT, b"frag"),
+        masked(true, op::PING, b"!"),
+        masked(false, op::CONTINUATION, b"mented "),
+        masked(
+            true,
+            op::CONTINUATION,
+            "message of some length \u{263A}".as_bytes(),
+        ),
+        masked(true, op::CLOSE, &1000u16.to_be_bytes()),
+    ]);
+    for piece in [1, 2, 3, 7, 64, 4096] {
+        let (ended, frames) = echo(&input, piece);
+        assert_eq!(ended, Ok(1000), "piece {piece}");
+        let expected = vec![
+            (op::PONG, b"!".to_vec()),
+            (
+                op::TEXT,
+                "fragmented message of some length \u{263A}".as_bytes().to_vec(),
+            ),
+            (op::CLOSE, 1000u16.to_be_bytes().to_vec()),
+        ];
+        assert_eq!(frames, expected, "piece {piece}");
+    }
+}
+
+#[test]
+fn peer_vanishing_mid_frame_ends_the_connection_without_a_reply() {
+    let mut input = session(&[masked(true, op::TEXT, b"state")]);
+    input.truncate(input.len() - 2);
+    let (ended, frames) = echo(&input, 5);
+    assert_eq!((ended, frames.len()), (Err(Error::PeerClosed), 0));
+}
+
+#[test]
+fn reserved_bits_fail_the_connection_with_1002() {
+    let mut frame = masked(true, op::TEXT, b"x");
+    frame[0] |= 0x40;
+    let (ended, frames) = echo(&session(&[frame]), 64);
+    assert_eq!(ended, Ok(1002));
+    assert_eq!(frames, vec![(op::CLOSE, 1002u16.to_be_bytes().to_vec())]);
+}
+
+#[test]
+fn text_frame_inside_a_fragmented_message_fails_with_1002() {
+    let input = session(&[masked(false, op::TEXT, b"a"), masked(true, op::TEXT, b"b")]);
+    assert_eq!(echo(&input, 64).0, Ok(1002));
+}
+
+#[test]
+fn close_reason_that_is_not_utf8_is_answered_with_1007() {
+    let input = session(&[masked(true, op::CLOSE, b"\x03\xe8\xff")]);
+    assert_eq!(echo(&input, 64).0, Ok(1007));
+}
+
+#[test]
+fn too_small_buffers_are_an_error_not_a_panic() {
+    let mut io = Pieces {
+        input: session(&[]),
+        at: 0,
+        piece: 64,
+        output: Vec::new(),
+    };
+    let (mut raw, mut message, mut response, mut transmit) = ([0; 16], [0; 16], [0; 16], [0; 16]);
+    let buffers = Buffers {
+        raw: &mut raw,
+        message: &mut message,
+        response: &mut response,
+        transmit: &mut transmit,
+    };
+    let mut conn = Connection::new(buffers, None);
+    assert_eq!(block_on(conn.accept(&mut io)), Err(Error::Buffers));
+}

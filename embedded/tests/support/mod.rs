@@ -1,0 +1,370 @@
+//! Test support: a thread-parking executor, two embassy-net stacks joined
+//! by an in-memory Ethernet link, a minimal WebSocket client and a small
+//! vehicle backend.
+#![allow(dead_code)]
+
+use std::future::Future;
+use std::pin::pin;
+use std::sync::Arc;
+use std::task::{Context, Poll, Wake, Waker};
+use std::thread::{self, Thread};
+
+use embassy_futures::join::join;
+use embassy_futures::select::{Either, select};
+use embassy_net::tcp::TcpSocket;
+use embassy_net::{Config as NetConfig, Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
+use embassy_net_driver_channel::{self as ch, driver::HardwareAddress, driver::LinkState};
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_time::{Duration, with_timeout};
+use lluav_core::{Args, Auth, Backend, Command, CommandId, Context as Ctx, Failure, Fields, Server};
+use lluav_embedded::{Config, Service, SharedServer, Slot, serve};
+
+pub const SERVER_IP: Ipv4Address = Ipv4Address::new(10, 53, 0, 1);
+pub const CLIENT_IP: Ipv4Address = Ipv4Address::new(10, 53, 0, 2);
+pub const PASSWORD: &str = "secret";
+/// Generous: only a hung adapter ever reaches it.
+pub const TEST_TIMEOUT: Duration = Duration::from_secs(60);
+
+const MTU: usize = 1514;
+type Link = ch::State<MTU, 8, 8>;
+
+/// Frame limit of the adapter under test.
+pub const FRAME: usize = 4096;
+/// Concurrent sessions of the adapter under test.
+pub const SESSIONS: usize = 4;
+pub type TestSlot = Slot<4096, 1024, FRAME, 2048>;
+
+struct Unpark(Thread);
+
+impl Wake for Unpark {
+    fn wake(self: Arc<Self>) {
+        self.0.unpark();
+    }
+}
+
+/// Runs a future to completion on this thread, sleeping while it is pending
+/// (embassy-time's std driver and the link wake it).
+pub fn block_on<F: Future>(future: F) -> F::Output {
+    let waker = Waker::from(Arc::new(Unpark(thread::current())));
+    let mut cx = Context::from_waker(&waker);
+    let mut future = pin!(future);
+    loop {
+        if let Poll::Ready(out) = future.as_mut().poll(&mut cx) {
+            return out;
+        }
+        thread::park();
+    }
+}
+
+fn leak<T>(value: T) -> &'static mut T {
+    Box::leak(Box::new(value))
+}
+
+/// Copies every frame one device transmits into the other's receive queue.
+async fn wire(from: &mut ch::TxRunner<'static, MTU>, to: &mut ch::RxRunner<'static, MTU>) {
+    loop {
+        let packet = from.tx_buf().await;
+        let len = packet.len();
+        let slot = to.rx_buf().await;
+        slot[..len].copy_from_slice(packet);
+        to.rx_done(len);
+        from.tx_done();
+    }
+}
+
+fn stack(
+    link: &'static mut Link,
+    mac: u8,
+    ip: Ipv4Address,
+    seed: u64,
+) -> (
+    Stack<'static>,
+    embassy_net::Runner<'static, ch::Device<'static, MTU>>,
+    ch::Runner<'static, MTU>,
+) {
+    let (runner, device) = ch::new(link, HardwareAddress::Ethernet([2, 0, 0, 0, 0, mac]));
+    let config = NetConfig::ipv4_static(StaticConfigV4 {
+        address: Ipv4Cidr::new(ip, 24),
+        gateway: None,
+        dns_servers: Default::default(),
+    });
+    let (stack, net) = embassy_net::new(device, config, leak(StackResources::<8>::new()), seed);
+    (stack, net, runner)
+}
+
+/// Runs `test` as a client on one stack against the adapter serving
+/// `service` on the other, within [`TEST_TIMEOUT`].
+pub fn with_service<S, F, Fut>(service: S, test: F)
+where
+    S: Service,
+    F: FnOnce(Stack<'static>) -> Fut,
+    Fut: Future<Output = ()>,
+{
+    let (server_stack, mut server_net, server_link) = stack(leak(Link::new()), 1, SERVER_IP, 1);
+    let (client_stack, mut client_net, client_link) = stack(leak(Link::new()), 2, CLIENT_IP, 2);
+    let (server_state, mut server_rx, mut server_tx) = server_link.split();
+    let (client_state, mut client_rx, mut client_tx) = client_link.split();
+    server_state.set_link_state(LinkState::Up);
+    client_state.set_link_state(LinkState::Up);
+    let slots = leak([const { TestSlot::new() }; SESSIONS]);
+    let config = Config::new();
+    let world = join(
+        join(server_net.run(), client_net.run()),
+        join(
+            join(
+                wire(&mut server_tx, &mut client_rx),
+                wire(&mut client_tx, &mut server_rx),
+            ),
+            serve(server_stack, &config, &service, slots),
+        ),
+    );
+    let body = with_timeout(TEST_TIMEOUT, test(client_stack));
+    match block_on(select(world, body)) {
+        Either::First(_) => unreachable!("the network never stops"),
+        Either::Second(result) => result.expect("the test timed out"),
+    }
+}
+
+/// Runs `test` against the protocol server with [`Vehicle`] and password [`PASSWORD`].
+pub fn with_server<F, Fut>(test: F)
+where
+    F: FnOnce(Stack<'static>) -> Fut,
+    Fut: Future<Output = ()>,
+{
+    let server = Server::new(
+        Vehicle::default(),
+        || 1_714_233_600_000,
+        Auth::new(Some(PASSWORD)).unwrap(),
+    );
+    with_service(SharedServer::<NoopRawMutex, _, _>::new(server), test)
+}
+
+/// A vehicle that arms on `takeoff` and disarms on `land`/`disarm`.
+#[derive(Default)]
+pub struct Vehicle {
+    armed: bool,
+}
+
+impl Backend for Vehicle {
+    fn armed(&self) -> bool {
+        self.armed
+    }
+
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Ctx, out: &mut Fields<'_>) -> Result<(), Failure> {
+        match (cmd.id(), cmd.args()) {
+            (CommandId::Takeoff, _) => self.armed = true,
+            (CommandId::Land | CommandId::Disarm, _) => self.armed = false,
+            (CommandId::State, _) => {
+                let armed = self.armed;
+                out.object("state", |s| {
+                    s.bool("armed", armed)
+                        .str("fsm", if armed { "armed" } else { "disarmed" })
+                        .bool("lock_mode", ctx.lock_mode);
+                });
+            }
+            (CommandId::Ledpwm, Args::Pwm(v)) => {
+                out.u64("pwm", u64::from(*v));
+            }
+            _ => return Err(Failure::unsupported("not in the test vehicle")),
+        }
+        Ok(())
+    }
+}
+
+/// An opcode as a client sends it.
+pub mod op {
+    pub const CONTINUATION: u8 = 0;
+    pub const TEXT: u8 = 1;
+    pub const BINARY: u8 = 2;
+    pub const CLOSE: u8 = 8;
+    pub const PING: u8 = 9;
+    pub const PONG: u8 = 10;
+}
+
+/// The RFC 6455 example key and its accept value.
+pub const KEY: &str = "dGhlIHNhbXBsZSBub25jZQ==";
+pub const ACCEPT: &str = "s3pPLMBiTxaQ9kYGzzhZRbK+xOo=";
+
+pub fn upgrade_request(extra: &str) -> String {
+    format!(
+        "GET / HTTP/1.1\r\nHost: {SERVER_IP}:53001\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n{extra}\r\n"
+    )
+}
+
+/// A frame as the client received it.
+#[derive(Debug, PartialEq, Eq)]
+pub struct Frame {
+    pub fin: bool,
+    pub opcode: u8,
+    pub payload: Vec<u8>,
+}
+
+impl Frame {
+    pub fn text(&self) -> serde_json::Value {
+        assert_eq!((self.fin, self.opcode), (true, op::TEXT), "{self:?}");
+        serde_json::from_slice(&self.payload).expect("a JSON response")
+    }
+
+    pub fn close_code(&self) -> u16 {
+        assert_eq!(self.opcode, op::CLOSE, "{self:?}");
+        u16::from_be_bytes([self.payload[0], self.payload[1]])
+    }
+}
+
+/// A minimal WebSocket client over the client stack.
+pub struct Client {
+    socket: TcpSocket<'static>,
+    inbox: Vec<u8>,
+}
+
+impl Client {
+    /// Opens a TCP connection to the adapter.
+    pub async fn tcp(stack: Stack<'static>) -> Client {
+        Client::try_tcp(stack).await.expect("connect")
+    }
+
+    /// Opens a TCP connection to the adapter, if it accepts one.
+    pub async fn try_tcp(stack: Stack<'static>) -> Result<Client, embassy_net::tcp::ConnectError> {
+        let mut socket = TcpSocket::new(stack, leak([0; 8192]), leak([0; 8192]));
+        socket.connect((SERVER_IP, lluav_embedded::PORT)).await?;
+        Ok(Client {
+            socket,
+            inbox: Vec::new(),
+        })
+    }
+
+    /// Connects and upgrades with the RFC example key, checking the accept value.
+    pub async fn connect(stack: Stack<'static>) -> Client {
+        let mut client = Client::tcp(stack).await;
+        let head = client
+            .request(&upgrade_request(&format!("Sec-WebSocket-Key: {KEY}\r\n")))
+            .await;
+        assert!(head.starts_with("HTTP/1.1 101 "), "{head}");
+        assert!(
+            head.contains(&format!("Sec-WebSocket-Accept: {ACCEPT}\r\n")),
+            "{head}"
+        );
+        client
+    }
+
+    /// Sends raw bytes.
+    pub async fn raw(&mut self, bytes: &[u8]) {
+        embedded_io_async::Write::write_all(&mut self.socket, bytes)
+            .await
+            .expect("write");
+        self.socket.flush().await.expect("flush");
+    }
+
+    /// Sends an upgrade request; returns the response head.
+    pub async fn request(&mut self, request: &str) -> String {
+        self.raw(request.as_bytes()).await;
+        loop {
+            if let Some(end) = self.inbox.windows(4).position(|w| w == b"\r\n\r\n") {
+                let head: Vec<u8> = self.inbox.drain(..end + 4).collect();
+                return String::from_utf8(head).expect("an ASCII head");
+            }
+            assert!(self.more().await, "closed before the response head");
+        }
+    }
+
+    /// Reads more bytes; false at end of stream.
+    async fn more(&mut self) -> bool {
+        let mut buf = [0; 2048];
+        match self.socket.read(&mut buf).await {
+            Ok(0) | Err(_) => false,
+            Ok(n) => {
+                self.inbox.extend_from_slice(&buf[..n]);
+                true
+            }
+        }
+    }
+
+    /// Sends one masked frame.
+    pub async fn frame(&mut self, fin: bool, opcode: u8, payload: &[u8]) {
+        self.raw(&masked(fin, opcode, payload)).await;
+    }
+
+    /// Sends a text message in one frame.
+    pub async fn send(&mut self, text: &str) {
+        self.frame(true, op::TEXT, text.as_bytes()).await;
+    }
+
+    /// Sends `text` and returns the JSON response.
+    pub async fn call(&mut self, text: &str) -> serde_json::Value {
+        self.send(text).await;
+        self.recv().await.text()
+    }
+
+    /// Receives one frame.
+    pub async fn recv(&mut self) -> Frame {
+        loop {
+            if let Some((frame, used)) = parse_server_frame(&self.inbox) {
+                self.inbox.drain(..used);
+                return frame;
+            }
+            assert!(self.more().await, "closed before a whole frame");
+        }
+    }
+
+    /// Whether the server closed the TCP connection (after any pending
+    /// frames); if so, closes our side too, as a real client would.
+    pub async fn closed(&mut self) -> bool {
+        let closed = !self.more().await && self.inbox.is_empty();
+        if closed {
+            self.socket.close();
+            let _ = self.socket.flush().await;
+        }
+        closed
+    }
+
+    /// Completes a close handshake we started.
+    pub async fn close(mut self, code: u16) -> u16 {
+        self.frame(true, op::CLOSE, &code.to_be_bytes()).await;
+        let answer = self.recv().await.close_code();
+        assert!(
+            self.closed().await,
+            "the server closes TCP after the close handshake"
+        );
+        answer
+    }
+}
+
+/// A masked client frame.
+pub fn masked(fin: bool, opcode: u8, payload: &[u8]) -> Vec<u8> {
+    let mask = [0x12, 0x34, 0x56, 0x78];
+    let mut out = vec![u8::from(fin) << 7 | opcode];
+    match payload.len() {
+        n @ 0..=125 => out.push(0x80 | n as u8),
+        n @ 126..=0xffff => {
+            out.push(0x80 | 126);
+            out.extend_from_slice(&(n as u16).to_be_bytes());
+        }
+        n => {
+            out.push(0x80 | 127);
+            out.extend_from_slice(&(n as u64).to_be_bytes());
+        }
+    }
+    out.extend_from_slice(&mask);
+    out.extend(payload.iter().enumerate().map(|(i, b)| b ^ mask[i % 4]));
+    out
+}
+
+/// Parses one unmasked server frame; `None` when incomplete.
+pub fn parse_server_frame(buf: &[u8]) -> Option<(Frame, usize)> {
+    let (&b0, &b1) = (buf.first()?, buf.get(1)?);
+    assert_eq!(b1 & 0x80, 0, "server frames are unmasked");
+    let (len, at) = match b1 & 0x7f {
+        126 => (u16::from_be_bytes(buf.get(2..4)?.try_into().ok()?) as usize, 4),
+        127 => (u64::from_be_bytes(buf.get(2..10)?.try_into().ok()?) as usize, 10),
+        n => (n as usize, 2),
+    };
+    let payload = buf.get(at..at + len)?.to_vec();
+    Some((
+        Frame {
+            fin: b0 & 0x80 != 0,
+            opcode: b0 & 0x0f,
+            payload,
+        },
+        at + len,
+    ))
+}
