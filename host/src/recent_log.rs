@@ -1,1 +1,217 @@
 //! The daemon's recent log messages, for `showmsg` and `savemsg`.
+//!
+//! A [`RecentLog`] is a bounded ring of formatted lines shared by clones.
+//! [`RecentLog::layer`] is a tracing layer that formats every event into
+//! it, so whatever the daemon logs is what `showmsg` shows.
+
+use std::collections::VecDeque;
+use std::fmt::{self, Write as _};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use tracing::field::{Field, Visit};
+use tracing::{Event, Subscriber};
+use tracing_subscriber::Layer;
+use tracing_subscriber::layer::Context;
+
+/// A ring buffer of the most recent log lines; clones share the buffer.
+#[derive(Clone, Debug)]
+pub struct RecentLog {
+    inner: Arc<Mutex<Ring>>,
+}
+
+#[derive(Debug)]
+struct Ring {
+    lines: VecDeque<String>,
+    capacity: usize,
+}
+
+impl RecentLog {
+    /// A buffer keeping the last `capacity` lines (at least one).
+    pub fn new(capacity: usize) -> Self {
+        let capacity = capacity.max(1);
+        RecentLog {
+            inner: Arc::new(Mutex::new(Ring {
+                lines: VecDeque::with_capacity(capacity.min(4096)),
+                capacity,
+            })),
+        }
+    }
+
+    /// Appends a line, dropping the oldest one when the buffer is full.
+    pub fn push(&self, line: String) {
+        let mut ring = self.lock();
+        if ring.lines.len() == ring.capacity {
+            ring.lines.pop_front();
+        }
+        ring.lines.push_back(line);
+    }
+
+    /// The last `n` lines (fewer if fewer were logged), oldest first.
+    pub fn recent(&self, n: usize) -> Vec<String> {
+        let ring = self.lock();
+        let skip = ring.lines.len().saturating_sub(n);
+        ring.lines.iter().skip(skip).cloned().collect()
+    }
+
+    /// How many lines the buffer holds now.
+    pub fn len(&self) -> usize {
+        self.lock().lines.len()
+    }
+
+    /// Whether nothing was logged yet.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// A tracing layer that writes every event into this buffer as
+    /// `<UTC time> <LEVEL> <target>: <message> key=value ...`.
+    pub fn layer<S: Subscriber>(&self) -> impl Layer<S> + use<S> {
+        RecentLogLayer { log: self.clone() }
+    }
+
+    // A panic while holding the lock leaves only whole lines behind, so a
+    // poisoned buffer is still consistent and worth reading.
+    fn lock(&self) -> MutexGuard<'_, Ring> {
+        self.inner.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+}
+
+struct RecentLogLayer {
+    log: RecentLog,
+}
+
+impl<S: Subscriber> Layer<S> for RecentLogLayer {
+    fn on_event(&self, event: &Event<'_>, _ctx: Context<'_, S>) {
+        let meta = event.metadata();
+        let mut visitor = LineVisitor::default();
+        event.record(&mut visitor);
+        let mut line = String::with_capacity(64 + visitor.message.len() + visitor.fields.len());
+        write_utc(&mut line, SystemTime::now());
+        let _ = write!(
+            line,
+            " {} {}: {}{}",
+            meta.level(),
+            meta.target(),
+            visitor.message,
+            visitor.fields
+        );
+        self.log.push(line);
+    }
+}
+
+/// Collects an event's `message` and its other fields as ` key=value`.
+#[derive(Default)]
+struct LineVisitor {
+    message: String,
+    fields: String,
+}
+
+impl Visit for LineVisitor {
+    fn record_str(&mut self, field: &Field, value: &str) {
+        if field.name() == "message" {
+            self.message.push_str(value);
+        } else {
+            let _ = write!(self.fields, " {}={}", field.name(), value);
+        }
+    }
+
+    fn record_debug(&mut self, field: &Field, value: &dyn fmt::Debug) {
+        if field.name() == "message" {
+            let _ = write!(self.message, "{value:?}");
+        } else {
+            let _ = write!(self.fields, " {}={:?}", field.name(), value);
+        }
+    }
+}
+
+/// Writes `t` as `YYYY-MM-DDTHH:MM:SS.mmmZ`.
+fn write_utc(out: &mut String, t: SystemTime) {
+    let since = t.duration_since(UNIX_EPOCH).unwrap_or_default();
+    let secs = since.as_secs();
+    let (days, rem) = (secs / 86_400, secs % 86_400);
+    let (y, m, d) = civil_from_days(days);
+    let _ = write!(
+        out,
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}.{:03}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60,
+        since.subsec_millis()
+    );
+}
+
+/// The UTC date of `t` as `YYYYMMDD`, e.g. for directory names.
+pub(crate) fn utc_date(t: SystemTime) -> String {
+    let days = t.duration_since(UNIX_EPOCH).unwrap_or_default().as_secs() / 86_400;
+    let (y, m, d) = civil_from_days(days);
+    format!("{y:04}{m:02}{d:02}")
+}
+
+/// The proleptic Gregorian date `days` after 1970-01-01, by counting whole
+/// 400-year eras (146 097 days each) and then years within the era.
+fn civil_from_days(days: u64) -> (u64, u64, u64) {
+    // Shift the epoch to 0000-03-01 so that leap days end each year.
+    let z = days + 719_468;
+    let era = z / 146_097;
+    let doe = z % 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + u64::from(m <= 2);
+    (y, m, d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+    use tracing_subscriber::layer::SubscriberExt;
+
+    #[test]
+    fn keeps_only_the_newest_lines_oldest_first() {
+        let log = RecentLog::new(3);
+        for i in 0..5 {
+            log.push(format!("line {i}"));
+        }
+        assert_eq!(log.recent(10), ["line 2", "line 3", "line 4"]);
+        assert_eq!(log.recent(2), ["line 3", "line 4"]);
+        assert!(log.recent(0).is_empty());
+    }
+
+    #[test]
+    fn clones_share_one_buffer() {
+        let log = RecentLog::new(4);
+        log.clone().push("from a clone".into());
+        assert_eq!(log.recent(1), ["from a clone"]);
+    }
+
+    #[test]
+    fn layer_records_level_target_message_and_fields() {
+        let log = RecentLog::new(8);
+        let subscriber = tracing_subscriber::registry().with(log.layer());
+        tracing::subscriber::with_default(subscriber, || {
+            tracing::warn!(target: "lluav::test", altitude = 12.5, "battery low");
+        });
+        let lines = log.recent(8);
+        assert_eq!(lines.len(), 1);
+        assert!(
+            lines[0].ends_with(" WARN lluav::test: battery low altitude=12.5"),
+            "{}",
+            lines[0]
+        );
+    }
+
+    #[test]
+    fn timestamps_are_utc_calendar_dates() {
+        let mut s = String::new();
+        // 2024-02-29T12:34:56.789Z: a leap day.
+        write_utc(&mut s, UNIX_EPOCH + Duration::from_millis(1_709_210_096_789));
+        assert_eq!(s, "2024-02-29T12:34:56.789Z");
+        s.clear();
+        write_utc(&mut s, UNIX_EPOCH);
+        assert_eq!(s, "1970-01-01T00:00:00.000Z");
+    }
+}

@@ -1,0 +1,351 @@
+//! The data directory: where maps, images, bags, videos, logs and persisted
+//! state live, and the only place client paths may point into.
+//!
+//! The core already refuses absolute paths, `..` and unsafe names; here
+//! every client path is joined to the data directory and walked component
+//! by component without following symlinks, and a symlink whose target
+//! leaves the data directory is refused.
+
+use std::ffi::OsString;
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, Write};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Component, Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::SystemTime;
+
+use super::error::{SimError, SimResult};
+
+/// Subdirectories of the data directory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Area {
+    /// Saved maps, one file each.
+    Maps,
+    /// Image directories, one per capture session.
+    Images,
+    /// Recorded bags, one file each.
+    Bags,
+    /// Downloaded camera videos.
+    Videos,
+    /// Saved log messages.
+    Logs,
+}
+
+impl Area {
+    const ALL: [Area; 5] = [Area::Maps, Area::Images, Area::Bags, Area::Videos, Area::Logs];
+
+    /// The subdirectory's name.
+    pub fn dir_name(self) -> &'static str {
+        match self {
+            Area::Maps => "maps",
+            Area::Images => "images",
+            Area::Bags => "bags",
+            Area::Videos => "videos",
+            Area::Logs => "logs",
+        }
+    }
+}
+
+/// The simulator's data directory.
+#[derive(Clone, Debug)]
+pub struct DataDir {
+    root: PathBuf,
+}
+
+impl DataDir {
+    /// Creates `root` and its subdirectories if needed.
+    pub fn open(root: &Path) -> io::Result<DataDir> {
+        fs::create_dir_all(root)?;
+        let root = fs::canonicalize(root)?;
+        for area in Area::ALL {
+            fs::create_dir_all(root.join(area.dir_name()))?;
+        }
+        Ok(DataDir { root })
+    }
+
+    /// The directory itself (canonical).
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// A subdirectory.
+    pub fn area(&self, area: Area) -> PathBuf {
+        self.root.join(area.dir_name())
+    }
+
+    /// Resolves a client's relative path inside the data directory. The
+    /// path need not exist; whatever part of it exists is checked.
+    pub fn resolve(&self, rel: &str) -> SimResult<PathBuf> {
+        self.resolve_under(&self.root, rel)
+    }
+
+    /// Resolves a single name inside `area`.
+    pub fn named(&self, area: Area, name: &str) -> SimResult<PathBuf> {
+        if Path::new(name).components().count() != 1 {
+            return Err(SimError::Escapes(name.into()));
+        }
+        self.resolve_under(&self.area(area), name)
+    }
+
+    fn resolve_under(&self, base: &Path, rel: &str) -> SimResult<PathBuf> {
+        let mut path = base.to_path_buf();
+        for component in Path::new(rel).components() {
+            match component {
+                Component::Normal(part) => path.push(part),
+                Component::CurDir => {}
+                _ => return Err(SimError::Escapes(rel.into())),
+            }
+            match fs::symlink_metadata(&path) {
+                Ok(meta) if meta.file_type().is_symlink() => {
+                    let target = fs::canonicalize(&path).map_err(|_| SimError::Escapes(rel.into()))?;
+                    if !target.starts_with(&self.root) {
+                        return Err(SimError::Escapes(rel.into()));
+                    }
+                }
+                Ok(_) => {}
+                // The rest does not exist yet, so nothing further can be a link.
+                Err(e) if e.kind() == io::ErrorKind::NotFound => break,
+                Err(e) => return Err(SimError::io(format!("stat {rel}"), e)),
+            }
+        }
+        Ok(path)
+    }
+
+    /// Reads a client's file, at most `limit` bytes, as UTF-8.
+    pub fn read_client_file(&self, rel: &str, limit: u64) -> SimResult<String> {
+        let path = self.resolve(rel)?;
+        let meta = fs::metadata(&path).map_err(|_| SimError::NotFound(rel.into()))?;
+        if !meta.is_file() {
+            return Err(SimError::NotFound(rel.into()));
+        }
+        if meta.len() > limit {
+            return Err(SimError::Refused(format!("{rel} is larger than {limit} bytes")));
+        }
+        let bytes = fs::read(&path).map_err(|e| SimError::io(format!("read {rel}"), e))?;
+        String::from_utf8(bytes).map_err(|_| SimError::Refused(format!("{rel} is not UTF-8")))
+    }
+}
+
+/// Writes `bytes` to `path` so that a crash leaves either the old or the new
+/// content: a temp file in the same directory, fsync, rename, fsync of the
+/// directory.
+pub fn atomic_write(path: &Path, bytes: &[u8], mode: u32) -> io::Result<()> {
+    static SEQ: AtomicU64 = AtomicU64::new(0);
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut tmp_name = OsString::from(".");
+    tmp_name.push(path.file_name().unwrap_or_default());
+    tmp_name.push(format!(
+        ".tmp.{}.{}",
+        std::process::id(),
+        SEQ.fetch_add(1, Ordering::Relaxed)
+    ));
+    let tmp = dir.join(tmp_name);
+    let result = (|| {
+        let mut f = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .mode(mode)
+            .open(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        fs::rename(&tmp, path)?;
+        File::open(dir)?.sync_all()
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Writes a new file that must not exist yet (never through a link).
+pub fn create_file(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let mut f = OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .custom_flags(libc::O_NOFOLLOW)
+        .open(path)?;
+    f.write_all(bytes)
+}
+
+/// A regular file or real directory (never a link) in an area.
+#[derive(Clone, Debug)]
+pub struct Entry {
+    /// Its name.
+    pub name: String,
+    /// Its full path.
+    pub path: PathBuf,
+    /// Size in bytes (of all regular files inside, for a directory).
+    pub bytes: u64,
+    /// Regular files inside (1 for a file).
+    pub files: u64,
+    /// Last modification.
+    pub modified: SystemTime,
+}
+
+impl Entry {
+    /// Modification time in milliseconds since the Unix epoch.
+    pub fn modified_ms(&self) -> i64 {
+        self.modified
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+    }
+}
+
+/// What [`entries`] lists.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// Regular files.
+    Files,
+    /// Directories.
+    Dirs,
+}
+
+/// The entries of `dir` of one kind, oldest first (ties by name). Links and
+/// hidden temp files are skipped.
+pub fn entries(dir: &Path, kind: Kind) -> io::Result<Vec<Entry>> {
+    let mut out = Vec::new();
+    for item in fs::read_dir(dir)? {
+        let item = item?;
+        let Ok(name) = item.file_name().into_string() else {
+            continue;
+        };
+        let meta = item.metadata()?;
+        let wanted = match kind {
+            Kind::Files => meta.file_type().is_file(),
+            Kind::Dirs => meta.file_type().is_dir(),
+        };
+        if !wanted || name.starts_with('.') {
+            continue;
+        }
+        let (bytes, files) = match kind {
+            Kind::Files => (meta.len(), 1),
+            Kind::Dirs => dir_usage(&item.path())?,
+        };
+        out.push(Entry {
+            name,
+            path: item.path(),
+            bytes,
+            files,
+            modified: meta.modified()?,
+        });
+    }
+    out.sort_by(|a, b| a.modified.cmp(&b.modified).then_with(|| a.name.cmp(&b.name)));
+    Ok(out)
+}
+
+fn dir_usage(dir: &Path) -> io::Result<(u64, u64)> {
+    let (mut bytes, mut files) = (0, 0);
+    for item in fs::read_dir(dir)? {
+        let meta = item?.metadata()?;
+        if meta.is_file() {
+            bytes += meta.len();
+            files += 1;
+        }
+    }
+    Ok((bytes, files))
+}
+
+/// Removes a regular file or a real directory tree (links inside are
+/// removed, never followed).
+pub fn remove_entry(path: &Path) -> io::Result<()> {
+    let meta = fs::symlink_metadata(path)?;
+    if meta.is_dir() {
+        fs::remove_dir_all(path)
+    } else {
+        fs::remove_file(path)
+    }
+}
+
+/// Deletes entries of `dir`, oldest first, until `enough()` holds (checked
+/// before each deletion) or none are left; `keep` is never deleted.
+/// Returns the names removed.
+pub fn clear_oldest(
+    dir: &Path,
+    kind: Kind,
+    keep: Option<&Path>,
+    mut enough: impl FnMut() -> io::Result<bool>,
+) -> io::Result<Vec<String>> {
+    let mut removed = Vec::new();
+    for entry in entries(dir, kind)? {
+        if keep == Some(entry.path.as_path()) {
+            continue;
+        }
+        if enough()? {
+            break;
+        }
+        remove_entry(&entry.path)?;
+        removed.push(entry.name);
+    }
+    Ok(removed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::unix::fs::symlink;
+
+    #[test]
+    fn symlinks_leaving_the_data_dir_are_refused() {
+        let outside = tempfile::tempdir().unwrap();
+        fs::write(outside.path().join("secret"), "x").unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let data = DataDir::open(dir.path()).unwrap();
+        symlink(outside.path(), data.root().join("out")).unwrap();
+        symlink(outside.path().join("secret"), data.area(Area::Maps).join("m")).unwrap();
+        assert!(matches!(data.resolve("out/secret"), Err(SimError::Escapes(_))));
+        assert!(matches!(data.named(Area::Maps, "m"), Err(SimError::Escapes(_))));
+        assert!(matches!(
+            data.read_client_file("out/secret", 10),
+            Err(SimError::Escapes(_))
+        ));
+    }
+
+    #[test]
+    fn symlinks_within_the_data_dir_are_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = DataDir::open(dir.path()).unwrap();
+        fs::write(data.area(Area::Maps).join("real"), "map").unwrap();
+        symlink(data.area(Area::Maps), data.root().join("alias")).unwrap();
+        assert_eq!(data.read_client_file("alias/real", 10).unwrap(), "map");
+    }
+
+    #[test]
+    fn atomic_write_replaces_and_leaves_no_temp_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("state");
+        atomic_write(&file, b"one", 0o600).unwrap();
+        atomic_write(&file, b"two", 0o600).unwrap();
+        assert_eq!(fs::read(&file).unwrap(), b"two");
+        assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn clear_oldest_stops_when_enough_and_keeps_the_kept_entry() {
+        let dir = tempfile::tempdir().unwrap();
+        for (i, name) in ["a", "b", "c"].iter().enumerate() {
+            let p = dir.path().join(name);
+            fs::write(&p, "x").unwrap();
+            let t = SystemTime::UNIX_EPOCH + std::time::Duration::from_secs(1_000 + i as u64);
+            File::options()
+                .write(true)
+                .open(&p)
+                .unwrap()
+                .set_modified(t)
+                .unwrap();
+        }
+        let keep = dir.path().join("a");
+        let mut budget = 1;
+        let removed = clear_oldest(dir.path(), Kind::Files, Some(&keep), || {
+            budget -= 1;
+            Ok(budget < 0)
+        })
+        .unwrap();
+        assert_eq!(removed, ["b"]);
+        let left: Vec<_> = entries(dir.path(), Kind::Files)
+            .unwrap()
+            .into_iter()
+            .map(|e| e.name)
+            .collect();
+        assert_eq!(left, ["a", "c"]);
+    }
+}

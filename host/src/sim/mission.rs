@@ -1,0 +1,486 @@
+//! Missions: parsing DESIGN.md's mission JSON, the submitted missions,
+//! waypoint runs and their results, abort reports, plans and task names.
+
+use serde::Deserialize;
+
+use lluav_core::Fields;
+
+use super::error::{SimError, SimResult};
+use super::fsm::{Ned, RouteEvent};
+
+/// Most waypoints one mission may hold.
+pub const MAX_WAYPOINTS: usize = 1000;
+/// Most missions (and results, and reports) kept; the oldest go first.
+pub const MAX_KEPT: usize = 64;
+
+/// A mission waypoint, NED metres and radians.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Waypoint {
+    /// Its id: given, or its 1-based position in the list.
+    #[serde(default)]
+    pub id: Option<u32>,
+    /// North.
+    pub x: f64,
+    /// East.
+    pub y: f64,
+    /// Down (negative is up).
+    pub z: f64,
+    /// Heading on arrival, if any.
+    #[serde(default)]
+    pub yaw: Option<f64>,
+}
+
+impl Waypoint {
+    /// The position.
+    pub fn ned(&self) -> Ned {
+        Ned::new(self.x, self.y, self.z)
+    }
+
+    /// The id (always set after [`parse`]).
+    pub fn wp_id(&self) -> u32 {
+        self.id.unwrap_or(0)
+    }
+
+    fn write(&self, out: &mut Fields<'_>) {
+        out.u64("id", self.wp_id().into())
+            .f64("x", self.x)
+            .f64("y", self.y)
+            .f64("z", self.z);
+        match self.yaw {
+            Some(yaw) => out.f64("yaw", yaw),
+            None => out.null("yaw"),
+        };
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MissionJson {
+    waypoints: Vec<Waypoint>,
+}
+
+/// Where the simulator may fly: a cylinder around home.
+#[derive(Clone, Copy, Debug)]
+pub struct Fence {
+    /// Home.
+    pub home: Ned,
+    /// Largest horizontal distance from home, m.
+    pub radius: f64,
+    /// Highest altitude above home, m.
+    pub max_alt: f64,
+}
+
+impl Fence {
+    /// Why `p` is not flyable, if it is not.
+    pub fn check(&self, p: Ned) -> Result<(), String> {
+        let dist = ((p.x - self.home.x).powi(2) + (p.y - self.home.y).powi(2)).sqrt();
+        if dist > self.radius {
+            return Err(format!(
+                "{dist:.1} m from home, beyond geofence_radius {}",
+                self.radius
+            ));
+        }
+        if p.z > 0.0 {
+            return Err(format!("z = {} is below the ground (NED: up is negative)", p.z));
+        }
+        if -p.z > self.max_alt {
+            return Err(format!("altitude {} m above max_alt {}", -p.z, self.max_alt));
+        }
+        Ok(())
+    }
+}
+
+/// Parses DESIGN.md's mission JSON and checks every waypoint against the
+/// fence. Waypoints without an id get their 1-based position.
+pub fn parse(text: &str, fence: &Fence) -> SimResult<Vec<Waypoint>> {
+    // serde would also take a struct from an array; DESIGN.md's format is
+    // an object, so say so instead of reporting a confusing field error.
+    if !text.trim_start().starts_with('{') {
+        return Err(SimError::Mission(
+            r#"expected an object {"waypoints":[...]}"#.into(),
+        ));
+    }
+    let json: MissionJson = serde_json::from_str(text).map_err(|e| SimError::Mission(e.to_string()))?;
+    let mut wps = json.waypoints;
+    if wps.is_empty() {
+        return Err(SimError::Mission("no waypoints".into()));
+    }
+    if wps.len() > MAX_WAYPOINTS {
+        return Err(SimError::Mission(format!("more than {MAX_WAYPOINTS} waypoints")));
+    }
+    let mut seen = std::collections::HashSet::new();
+    for (i, wp) in wps.iter_mut().enumerate() {
+        let id = *wp.id.get_or_insert(u32::try_from(i + 1).unwrap_or(u32::MAX));
+        if !seen.insert(id) {
+            return Err(SimError::Mission(format!("duplicate waypoint id {id}")));
+        }
+        if wp.yaw.is_some_and(|y| !y.is_finite()) {
+            return Err(SimError::Mission(format!("waypoint {id}: yaw is not finite")));
+        }
+        fence
+            .check(wp.ned())
+            .map_err(|why| SimError::Mission(format!("waypoint {id}: {why}")))?;
+    }
+    Ok(wps)
+}
+
+/// Where a mission came from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Source {
+    /// Inline JSON.
+    Json,
+    /// A file under the data directory.
+    File(String),
+    /// `ai1_mission` with this task id.
+    Ai1(String),
+}
+
+/// A submitted mission.
+#[derive(Clone, Debug)]
+pub struct Mission {
+    /// External id (`mission`), or 0 for an AI1 task.
+    pub ext_id: u32,
+    /// Where it came from.
+    pub source: Source,
+    /// Its waypoints.
+    pub waypoints: Vec<Waypoint>,
+    /// When it was received, ms since the Unix epoch.
+    pub received_ms: i64,
+}
+
+/// How a waypoint run went.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Status {
+    /// Still flying.
+    Running,
+    /// Every waypoint reached.
+    Completed,
+    /// Replaced by another command (setpoint, land, RTL, disarm, ...).
+    Interrupted,
+    /// Ended by `abort_report`.
+    Aborted,
+}
+
+impl Status {
+    fn name(self) -> &'static str {
+        match self {
+            Status::Running => "running",
+            Status::Completed => "completed",
+            Status::Interrupted => "interrupted",
+            Status::Aborted => "aborted",
+        }
+    }
+}
+
+/// One `mw_exec`.
+#[derive(Clone, Debug)]
+pub struct Run {
+    /// The mission.
+    pub ext_id: u32,
+    /// The flight model's route id.
+    pub route: u64,
+    /// Waypoints asked for, in order.
+    pub wp_ids: Vec<u32>,
+    /// Waypoints reached so far.
+    pub reached: Vec<u32>,
+    /// How it went.
+    pub status: Status,
+    /// When it started, ms since the Unix epoch.
+    pub started_ms: i64,
+}
+
+impl Run {
+    fn write(&self, out: &mut Fields<'_>) {
+        out.u64("ext_id", self.ext_id.into())
+            .str("status", self.status.name())
+            .array("wp_ids", |a| {
+                self.wp_ids.iter().for_each(|&i| {
+                    a.u64(i.into());
+                })
+            })
+            .array("reached", |a| {
+                self.reached.iter().for_each(|&i| {
+                    a.u64(i.into());
+                })
+            })
+            .i64("started_ms", self.started_ms);
+    }
+}
+
+/// An `abort_report`.
+#[derive(Clone, Debug)]
+pub struct AbortReport {
+    /// The id the client gave, or the next free one.
+    pub abort_id: u32,
+    /// The run it ended, if one was running.
+    pub ext_id: Option<u32>,
+    /// Waypoints reached before the abort.
+    pub reached: usize,
+    /// Waypoints the run had.
+    pub total: usize,
+    /// When, ms since the Unix epoch.
+    pub at_ms: i64,
+}
+
+/// All mission bookkeeping.
+#[derive(Debug, Default)]
+pub struct Missions {
+    missions: Vec<Mission>,
+    runs: Vec<Run>,
+    reports: Vec<AbortReport>,
+    /// The current task name.
+    pub taskname: Option<String>,
+    /// Obstacle mission live mode.
+    pub obs_live: bool,
+    /// The running plan and whether it holds the plan lock.
+    pub plan: Option<String>,
+    /// Whether the plan lock is held.
+    pub plan_locked: bool,
+}
+
+/// Whether `b` replaces `a`: same external id, or same AI1 task id.
+fn same_slot(a: &Mission, b: &Mission) -> bool {
+    match (&a.source, &b.source) {
+        (Source::Ai1(x), Source::Ai1(y)) => x == y,
+        (Source::Ai1(_), _) | (_, Source::Ai1(_)) => false,
+        _ => a.ext_id == b.ext_id,
+    }
+}
+
+fn push_bounded<T>(v: &mut Vec<T>, item: T) {
+    if v.len() == MAX_KEPT {
+        v.remove(0);
+    }
+    v.push(item);
+}
+
+impl Missions {
+    /// Stores a mission, replacing one with the same external id (or the
+    /// same AI1 task id).
+    pub fn submit(&mut self, mission: Mission) {
+        self.missions.retain(|m| !same_slot(m, &mission));
+        push_bounded(&mut self.missions, mission);
+    }
+
+    /// The mission with this external id.
+    pub fn get(&self, ext_id: u32) -> SimResult<&Mission> {
+        self.missions
+            .iter()
+            .rev()
+            .find(|m| m.ext_id == ext_id && !matches!(m.source, Source::Ai1(_)))
+            .ok_or(SimError::UnknownMission(ext_id))
+    }
+
+    /// The most recently submitted mission.
+    pub fn latest(&self) -> Option<&Mission> {
+        self.missions.last()
+    }
+
+    /// The waypoints of `ext_id` with these ids, in the order asked, or the
+    /// ids it does not have.
+    pub fn select(&self, ext_id: u32, ids: &[u32]) -> SimResult<Vec<Waypoint>> {
+        let mission = self.get(ext_id)?;
+        let find = |id: u32| mission.waypoints.iter().find(|w| w.wp_id() == id).copied();
+        let missing: Vec<String> = ids
+            .iter()
+            .filter(|&&id| find(id).is_none())
+            .map(u32::to_string)
+            .collect();
+        if !missing.is_empty() {
+            return Err(SimError::UnknownWaypoints(missing.join(",")));
+        }
+        Ok(ids.iter().filter_map(|&id| find(id)).collect())
+    }
+
+    /// Records a new run.
+    pub fn start_run(&mut self, run: Run) {
+        push_bounded(&mut self.runs, run);
+    }
+
+    /// The running run, if any.
+    pub fn active(&self) -> Option<&Run> {
+        self.runs.last().filter(|r| r.status == Status::Running)
+    }
+
+    /// Applies the flight model's route events to the runs.
+    pub fn apply(&mut self, events: &[RouteEvent]) {
+        for event in events {
+            let (RouteEvent::Reached { route, .. }
+            | RouteEvent::Finished { route }
+            | RouteEvent::Dropped { route }) = *event;
+            let Some(run) = self.runs.iter_mut().rev().find(|r| r.route == route) else {
+                continue;
+            };
+            match *event {
+                RouteEvent::Reached { wp, .. } => run.reached.push(wp),
+                RouteEvent::Finished { .. } if run.status == Status::Running => {
+                    run.status = Status::Completed
+                }
+                RouteEvent::Dropped { .. } if run.status == Status::Running => {
+                    run.status = Status::Interrupted
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Marks the running run aborted and records a report.
+    pub fn abort(&mut self, abort_id: Option<u32>, now_ms: i64) -> AbortReport {
+        let run = self.runs.last_mut().filter(|r| r.status == Status::Running);
+        let (ext_id, reached, total) = match run {
+            Some(r) => {
+                r.status = Status::Aborted;
+                (Some(r.ext_id), r.reached.len(), r.wp_ids.len())
+            }
+            None => (None, 0, 0),
+        };
+        let next = self.reports.last().map_or(1, |r| r.abort_id.saturating_add(1));
+        let report = AbortReport {
+            abort_id: abort_id.unwrap_or(next),
+            ext_id,
+            reached,
+            total,
+            at_ms: now_ms,
+        };
+        push_bounded(&mut self.reports, report.clone());
+        report
+    }
+
+    /// Writes `mission_result` for `ext_id` (or the latest run): `null`
+    /// when nothing ran yet and no id was asked for.
+    pub fn write_result(&self, ext_id: Option<u32>, out: &mut Fields<'_>) -> SimResult {
+        let run = self
+            .runs
+            .iter()
+            .rev()
+            .find(|r| ext_id.is_none_or(|id| r.ext_id == id));
+        match (run, ext_id) {
+            (Some(run), _) => {
+                out.object("mission_result", |o| run.write(o));
+            }
+            (None, None) => {
+                out.null("mission_result");
+            }
+            (None, Some(id)) => return Err(SimError::NotFound(format!("result of mission {id}"))),
+        }
+        Ok(())
+    }
+
+    /// Writes `missions`: every stored mission, shortly.
+    pub fn write_list(&self, out: &mut Fields<'_>) {
+        out.array("missions", |a| {
+            for m in &self.missions {
+                a.object(|o| {
+                    o.u64("ext_id", m.ext_id.into())
+                        .u64("waypoints", m.waypoints.len() as u64);
+                    match &m.source {
+                        Source::Json => o.str("source", "json"),
+                        Source::File(p) => o.str("source", "file").str("path", p),
+                        Source::Ai1(task) => o.str("source", "ai1").str("task_id", task),
+                    };
+                    o.i64("received_ms", m.received_ms);
+                });
+            }
+        });
+    }
+
+    /// Writes `waypoints` of a mission as objects.
+    pub fn write_waypoints(mission: &Mission, out: &mut Fields<'_>) {
+        out.array("waypoints", |a| {
+            for wp in &mission.waypoints {
+                a.object(|o| wp.write(o));
+            }
+        });
+    }
+}
+
+impl AbortReport {
+    /// Writes the report as members of an object.
+    pub fn write(&self, out: &mut Fields<'_>) {
+        out.u64("abort_id", self.abort_id.into());
+        match self.ext_id {
+            Some(id) => out.u64("ext_id", id.into()),
+            None => out.null("ext_id"),
+        };
+        out.bool("aborted", self.ext_id.is_some())
+            .u64("reached", self.reached as u64)
+            .u64("total", self.total as u64)
+            .i64("at_ms", self.at_ms);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fence() -> Fence {
+        Fence {
+            home: Ned::default(),
+            radius: 100.0,
+            max_alt: 50.0,
+        }
+    }
+
+    #[test]
+    fn design_mission_json_is_accepted_with_default_ids() {
+        let wps = parse(
+            r#"{"waypoints":[{"x":1,"y":2,"z":-3,"yaw":0.5},{"x":4,"y":5,"z":-6}]}"#,
+            &fence(),
+        )
+        .unwrap();
+        assert_eq!(wps.len(), 2);
+        assert_eq!((wps[0].wp_id(), wps[1].wp_id()), (1, 2));
+        assert_eq!(wps[0].yaw, Some(0.5));
+        assert_eq!(wps[1].yaw, None);
+    }
+
+    #[test]
+    fn unusable_missions_are_refused_with_a_reason() {
+        let refused = |json: &str| parse(json, &fence()).unwrap_err().to_string();
+        assert_eq!(
+            refused(r#"[{"x":1}]"#),
+            r#"Bad mission: expected an object {"waypoints":[...]}"#
+        );
+        assert!(refused(r#"{"waypoints":[{"x":1,"y":2}]}"#).contains("missing field `z`"));
+        assert!(
+            refused(r#"{"waypoints":[{"x":1,"y":2,"z":-1,"speed":3}]}"#).contains("unknown field `speed`")
+        );
+        assert_eq!(refused(r#"{"waypoints":[]}"#), "Bad mission: no waypoints");
+        assert_eq!(
+            refused(r#"{"waypoints":[{"id":4,"x":0,"y":0,"z":-1},{"id":4,"x":0,"y":0,"z":-2}]}"#),
+            "Bad mission: duplicate waypoint id 4"
+        );
+        assert!(refused(r#"{"waypoints":[{"x":0,"y":0,"z":2}]}"#).contains("below the ground"));
+        assert!(refused(r#"{"waypoints":[{"x":500,"y":0,"z":-2}]}"#).contains("geofence_radius"));
+        assert!(refused(r#"{"waypoints":[{"x":0,"y":0,"z":-80}]}"#).contains("max_alt"));
+    }
+
+    #[test]
+    fn unknown_waypoint_ids_are_named() {
+        let mut m = Missions::default();
+        m.submit(Mission {
+            ext_id: 9,
+            source: Source::Json,
+            waypoints: parse(
+                r#"{"waypoints":[{"x":1,"y":0,"z":-1},{"x":2,"y":0,"z":-1}]}"#,
+                &fence(),
+            )
+            .unwrap(),
+            received_ms: 0,
+        });
+        assert_eq!(
+            m.select(9, &[2, 1])
+                .unwrap()
+                .iter()
+                .map(Waypoint::wp_id)
+                .collect::<Vec<_>>(),
+            [2, 1]
+        );
+        assert_eq!(
+            m.select(9, &[1, 7, 8]).unwrap_err().to_string(),
+            "Unknown waypoint ids: 7,8"
+        );
+        assert_eq!(m.select(3, &[1]).unwrap_err().to_string(), "Unknown mission: 3");
+    }
+}

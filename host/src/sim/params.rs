@@ -1,0 +1,341 @@
+//! Vehicle parameters: typed, with defaults and ranges, persisted atomically.
+//!
+//! `set_param` and `reset_param` change the working values only;
+//! `save_param 1` writes them to `params.json` in the data directory (temp
+//! file, fsync, rename, fsync of the directory), `save_param 0` discards the
+//! unsaved changes by going back to what is on disk. `open` loads the file.
+
+use std::io;
+use std::path::{Path, PathBuf};
+
+use lluav_core::Fields;
+
+use super::error::{SimError, SimResult};
+use super::files::atomic_write;
+
+/// A parameter value.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Value {
+    /// An integer.
+    Int(i64),
+    /// A real number.
+    Float(f64),
+    /// A boolean (`0`/`1`/`true`/`false` on the wire).
+    Bool(bool),
+}
+
+impl Value {
+    /// The type's name, as `get_param` reports it.
+    pub fn type_name(self) -> &'static str {
+        match self {
+            Value::Int(_) => "int",
+            Value::Float(_) => "float",
+            Value::Bool(_) => "bool",
+        }
+    }
+
+    fn as_f64(self) -> f64 {
+        match self {
+            Value::Int(i) => i as f64,
+            Value::Float(f) => f,
+            Value::Bool(b) => f64::from(u8::from(b)),
+        }
+    }
+
+    /// Parses `text` as a value of the same type as `self`.
+    fn parse_like(self, text: &str) -> Option<Value> {
+        let text = text.trim();
+        match self {
+            Value::Int(_) => text.parse().ok().map(Value::Int),
+            Value::Float(_) => text
+                .parse::<f64>()
+                .ok()
+                .filter(|f| f.is_finite())
+                .map(Value::Float),
+            Value::Bool(_) => match text {
+                "1" | "true" => Some(Value::Bool(true)),
+                "0" | "false" => Some(Value::Bool(false)),
+                _ => None,
+            },
+        }
+    }
+
+    fn from_json(self, v: &serde_json::Value) -> Option<Value> {
+        match self {
+            Value::Int(_) => v.as_i64().map(Value::Int),
+            Value::Float(_) => v.as_f64().map(Value::Float),
+            Value::Bool(_) => v.as_bool().map(Value::Bool),
+        }
+    }
+
+    fn to_json(self) -> serde_json::Value {
+        match self {
+            Value::Int(i) => i.into(),
+            Value::Float(f) => f.into(),
+            Value::Bool(b) => b.into(),
+        }
+    }
+
+    /// Writes the value as a member of a response object.
+    pub fn write(self, out: &mut Fields<'_>, key: &str) {
+        match self {
+            Value::Int(i) => out.i64(key, i),
+            Value::Float(f) => out.f64(key, f),
+            Value::Bool(b) => out.bool(key, b),
+        };
+    }
+}
+
+/// One parameter's definition.
+#[derive(Clone, Copy, Debug)]
+pub struct Def {
+    /// The typed key the simulator reads it by.
+    pub key: Key,
+    /// Its name on the wire.
+    pub name: &'static str,
+    /// Its default, which also fixes its type.
+    pub default: Value,
+    /// Smallest allowed value (ignored for booleans).
+    pub min: f64,
+    /// Largest allowed value (ignored for booleans).
+    pub max: f64,
+    /// What it does, with its unit.
+    pub doc: &'static str,
+}
+
+macro_rules! params {
+    ($( $key:ident $name:literal $default:expr, $min:literal ..= $max:literal, $doc:literal; )*) => {
+        /// A parameter the simulator reads.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        pub enum Key { $( #[doc = $doc] $key, )* }
+
+        /// Every parameter, in `Key` order.
+        pub static DEFS: &[Def] = &[
+            $( Def { key: Key::$key, name: $name, default: $default, min: $min, max: $max, doc: $doc }, )*
+        ];
+    };
+}
+
+params! {
+    TakeoffAlt "takeoff_alt" Value::Float(2.0), 0.5..=120.0, "Takeoff altitude above home, m.";
+    ClimbSpeed "climb_speed" Value::Float(1.0), 0.1..=5.0, "Vertical speed when climbing, m/s.";
+    LandSpeed "land_speed" Value::Float(0.7), 0.2..=3.0, "Slowest landing descent, m/s (faster from high up, so that landing takes at most 12 s).";
+    CruiseSpeed "cruise_speed" Value::Float(2.0), 0.1..=15.0, "Horizontal speed towards setpoints and waypoints, m/s.";
+    YawRate "yaw_rate" Value::Float(1.0), 0.1..=6.3, "Largest yaw rate, rad/s.";
+    AcceptRadius "accept_radius" Value::Float(0.3), 0.05..=10.0, "Distance at which a waypoint counts as reached, m.";
+    RtlAlt "rtl_alt" Value::Float(10.0), 2.0..=120.0, "Altitude the vehicle climbs to (if lower) before returning home, m.";
+    RtlLand "rtl_land" Value::Bool(true), 0.0..=1.0, "Whether RTL lands at home (otherwise it hovers there).";
+    MaxAlt "max_alt" Value::Float(120.0), 1.0..=500.0, "Highest setpoint or waypoint altitude above home, m.";
+    GeofenceRadius "geofence_radius" Value::Float(500.0), 1.0..=10000.0, "Largest horizontal distance from home of a setpoint or waypoint, m.";
+    BatteryDrain "battery_drain" Value::Float(1.0), 0.0..=100.0, "Battery drain while armed, percent per minute.";
+    LowBattery "low_battery" Value::Float(20.0), 0.0..=90.0, "Battery percentage below which a flying vehicle returns home.";
+    ZyhkHover "zyhk_hover" Value::Float(5.0), 0.0..=600.0, "Hover time at each zyhk height, s.";
+    AutosleepAfter "autosleep_after" Value::Int(300), 10.0..=86400.0, "Disarmed time before auto-sleep (when enabled), s.";
+    MavlinkRate "mavlink_rate" Value::Int(50), 1.0..=400.0, "Rate of the simulated ATTITUDE stream, Hz.";
+}
+
+/// The working and saved parameter values.
+#[derive(Debug)]
+pub struct Params {
+    values: Vec<Value>,
+    saved: Vec<Value>,
+    file: PathBuf,
+}
+
+impl Params {
+    /// Loads `file` if it exists; parameters it lacks keep their defaults.
+    /// Unknown names and unusable values in the file are skipped with a
+    /// warning, so that an older or newer daemon can still start.
+    pub fn load(file: PathBuf) -> io::Result<Params> {
+        let saved = read_file(&file)?;
+        Ok(Params {
+            values: saved.clone(),
+            saved,
+            file,
+        })
+    }
+
+    /// The working value of `key`.
+    pub fn value(&self, key: Key) -> Value {
+        self.values.get(key as usize).copied().unwrap_or(Value::Int(0))
+    }
+
+    /// The working value of `key` as a number.
+    pub fn f64(&self, key: Key) -> f64 {
+        self.value(key).as_f64()
+    }
+
+    /// The working value of a boolean `key`.
+    pub fn flag(&self, key: Key) -> bool {
+        self.value(key) == Value::Bool(true)
+    }
+
+    /// The definition and working value of the parameter called `name`.
+    pub fn get(&self, name: &str) -> SimResult<(&'static Def, Value)> {
+        let def = DEFS
+            .iter()
+            .find(|d| d.name == name)
+            .ok_or_else(|| SimError::UnknownParam(name.into()))?;
+        Ok((def, self.value(def.key)))
+    }
+
+    /// Whether the working value of `def` differs from the saved one.
+    pub fn unsaved(&self, def: &Def) -> bool {
+        self.values.get(def.key as usize) != self.saved.get(def.key as usize)
+    }
+
+    /// Sets the working value of `name` from its text (ret -2 for a value
+    /// of the wrong type, -1 for an unknown name or a value out of range).
+    pub fn set(&mut self, name: &str, text: &str) -> SimResult<Value> {
+        let (def, _) = self.get(name)?;
+        let value = def.default.parse_like(text).ok_or_else(|| SimError::ParamType {
+            name: name.into(),
+            expected: def.default.type_name(),
+            value: text.into(),
+        })?;
+        if !in_range(def, value) {
+            return Err(SimError::ParamRange {
+                name: name.into(),
+                value: text.trim().into(),
+                min: def.min,
+                max: def.max,
+            });
+        }
+        if let Some(slot) = self.values.get_mut(def.key as usize) {
+            *slot = value;
+        }
+        Ok(value)
+    }
+
+    /// Every working value back to its default (not saved until `save`).
+    pub fn reset(&mut self) {
+        self.values = defaults();
+    }
+
+    /// Persists the working values atomically.
+    pub fn save(&mut self) -> io::Result<()> {
+        let map: serde_json::Map<String, serde_json::Value> = DEFS
+            .iter()
+            .map(|d| (d.name.to_owned(), self.value(d.key).to_json()))
+            .collect();
+        let text = serde_json::to_vec_pretty(&map).map_err(io::Error::other)?;
+        atomic_write(&self.file, &text, 0o644)?;
+        self.saved = self.values.clone();
+        Ok(())
+    }
+
+    /// Drops unsaved changes by reloading the file; returns how many
+    /// parameters changed back.
+    pub fn discard(&mut self) -> io::Result<usize> {
+        self.saved = read_file(&self.file)?;
+        let changed = self
+            .values
+            .iter()
+            .zip(&self.saved)
+            .filter(|(a, b)| a != b)
+            .count();
+        self.values = self.saved.clone();
+        Ok(changed)
+    }
+
+    /// Writes every parameter as `name: value` members.
+    pub fn write_all(&self, out: &mut Fields<'_>) {
+        for def in DEFS {
+            self.value(def.key).write(out, def.name);
+        }
+    }
+}
+
+fn defaults() -> Vec<Value> {
+    DEFS.iter().map(|d| d.default).collect()
+}
+
+fn in_range(def: &Def, value: Value) -> bool {
+    matches!(value, Value::Bool(_)) || (def.min..=def.max).contains(&value.as_f64())
+}
+
+fn read_file(file: &Path) -> io::Result<Vec<Value>> {
+    let mut values = defaults();
+    let text = match std::fs::read(file) {
+        Ok(t) => t,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(values),
+        Err(e) => return Err(e),
+    };
+    let map: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(&text)
+        .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, format!("{}: {e}", file.display())))?;
+    for (name, json) in &map {
+        let def = DEFS.iter().find(|d| d.name == name);
+        match def.and_then(|d| Some((d, d.default.from_json(json)?))) {
+            Some((def, value)) if in_range(def, value) => values[def.key as usize] = value,
+            _ => {
+                tracing::warn!(file = %file.display(), param = %name, value = %json, "ignoring saved parameter")
+            }
+        }
+    }
+    Ok(values)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_index_their_own_definitions() {
+        for (i, def) in DEFS.iter().enumerate() {
+            assert_eq!(def.key as usize, i, "{}", def.name);
+            assert!(in_range(def, def.default), "{} default out of range", def.name);
+        }
+    }
+
+    #[test]
+    fn set_checks_type_then_range() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut p = Params::load(dir.path().join("params.json")).unwrap();
+        assert_eq!(p.set("takeoff_alt", "3").unwrap(), Value::Float(3.0));
+        assert_eq!(p.set("autosleep_after", "60").unwrap(), Value::Int(60));
+        assert_eq!(p.set("rtl_land", "false").unwrap(), Value::Bool(false));
+        let e = p.set("autosleep_after", "1.5").unwrap_err();
+        assert_eq!(e.to_string(), "autosleep_after: expected int, got '1.5'");
+        let e = p.set("takeoff_alt", "121").unwrap_err();
+        assert_eq!(e.to_string(), "takeoff_alt: 121 out of range 0.5..120");
+        assert_eq!(
+            p.set("takeoff_alt", "NaN").unwrap_err().ret(),
+            lluav_core::Ret::InvalidArgs
+        );
+        assert_eq!(
+            p.set("nope", "1").unwrap_err().to_string(),
+            "Unknown parameter: nope"
+        );
+        assert_eq!(p.f64(Key::TakeoffAlt), 3.0);
+    }
+
+    #[test]
+    fn saved_values_survive_a_reload_and_discard_restores_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("params.json");
+        let mut p = Params::load(file.clone()).unwrap();
+        p.set("cruise_speed", "4.5").unwrap();
+        p.save().unwrap();
+        p.set("cruise_speed", "1").unwrap();
+        assert_eq!(p.discard().unwrap(), 1);
+        assert_eq!(p.f64(Key::CruiseSpeed), 4.5);
+        let reloaded = Params::load(file).unwrap();
+        assert_eq!(reloaded.f64(Key::CruiseSpeed), 4.5);
+        assert_eq!(reloaded.f64(Key::TakeoffAlt), 2.0);
+    }
+
+    #[test]
+    fn unusable_saved_values_fall_back_to_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("params.json");
+        std::fs::write(
+            &file,
+            r#"{"takeoff_alt": 999, "climb_speed": 2.5, "future_param": 1, "rtl_land": 3}"#,
+        )
+        .unwrap();
+        let p = Params::load(file).unwrap();
+        assert_eq!(p.f64(Key::TakeoffAlt), 2.0);
+        assert_eq!(p.f64(Key::ClimbSpeed), 2.5);
+        assert!(p.flag(Key::RtlLand));
+    }
+}
