@@ -198,3 +198,16 @@ fn safety_commands_are_never_gated_by_arm_or_lock() {
         );
     }
 }
+
+#[test]
+fn the_fuzz_dictionary_lists_exactly_the_table() {
+    let dict = include_str!("../../fuzz/lluav.dict");
+    let names: Vec<&str> = dict
+        .lines()
+        .take_while(|l| !l.starts_with("# Separators"))
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.trim_matches('"'))
+        .collect();
+    let table: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
+    assert_eq!(names, table);
+}
