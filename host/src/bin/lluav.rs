@@ -1,0 +1,269 @@
+//! `lluav`: the LLUAV command-line client.
+//!
+//! `lluav [--url URL] [--password P] COMMAND [ARGS]` sends one command and
+//! prints its response as pretty JSON; the exit status is 0 when `ret` is
+//! 0, 1 when the command failed or the server could not be reached, 2 when
+//! the command line is not a valid request. Without a command it starts an
+//! interactive session with history and completion of command names.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use lluav_core::{Grammar, TABLE};
+use lluav_host::client::{Client, ClientError, DEFAULT_URL, Response};
+use rustyline::completion::{Completer, Pair};
+use rustyline::error::ReadlineError;
+use rustyline::highlight::Highlighter;
+use rustyline::hint::Hinter;
+use rustyline::history::DefaultHistory;
+use rustyline::validate::Validator;
+use rustyline::{Context, Editor, Helper};
+use tokio::runtime::Runtime;
+
+/// The LLUAV command-line client: one command, or an interactive session.
+#[derive(Debug, Parser)]
+#[command(name = "lluav", version)]
+struct Cli {
+    /// The server.
+    #[arg(long, default_value = DEFAULT_URL, value_name = "URL")]
+    url: String,
+    /// Log in with this password first.
+    #[arg(long, env = "LLUAV_PASSWORD", hide_env_values = true, value_name = "P")]
+    password: Option<String>,
+    /// The command and its arguments, e.g. `state` or `set_sp_ned 1:2:-3:0`;
+    /// none starts the interactive session.
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true, value_name = "COMMAND")]
+    command: Vec<String>,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("lluav: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    if cli.command.is_empty() {
+        repl(&runtime, &cli)
+    } else {
+        one_shot(&runtime, &cli, &cli.command.join(" "))
+    }
+}
+
+fn one_shot(runtime: &Runtime, cli: &Cli, line: &str) -> ExitCode {
+    // Catch a malformed request here, with its usage line, before dialling.
+    if let Err(e) = lluav_core::parse(line) {
+        eprintln!("lluav: {e}");
+        return ExitCode::from(2);
+    }
+    let answered = runtime.block_on(async {
+        let mut client = connect(cli).await?;
+        let response = client.send_line(line).await?;
+        // The answer is in; a failed close does not change it.
+        let _ = client.close().await;
+        Ok::<_, ClientError>(response)
+    });
+    match answered {
+        Ok(response) => {
+            print_response(&response);
+            if response.ret < 0 {
+                if let Some(msg) = response.msg() {
+                    eprintln!("lluav: {line}: {msg} (ret {})", response.ret);
+                }
+                ExitCode::FAILURE
+            } else {
+                ExitCode::SUCCESS
+            }
+        }
+        Err(e) => {
+            eprintln!("lluav: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Connects and, when a password is given, logs in (a refused login is an
+/// error: every command after it would be refused too).
+async fn connect(cli: &Cli) -> Result<Client, ClientError> {
+    let mut client = Client::connect(&cli.url).await.map_err(|e| match e {
+        ClientError::Connect { url, source } => ClientError::Connect {
+            url: format!("{url} (is lluavd running?)"),
+            source,
+        },
+        other => other,
+    })?;
+    if let Some(password) = &cli.password {
+        client.login(password).await?.check()?;
+    }
+    Ok(client)
+}
+
+fn print_response(response: &Response) {
+    match serde_json::to_string_pretty(&response.to_json()) {
+        Ok(text) => println!("{text}"),
+        Err(e) => eprintln!("lluav: cannot print the response: {e}"),
+    }
+}
+
+fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
+    let mut editor: Editor<Commands, DefaultHistory> = match Editor::new() {
+        Ok(e) => e,
+        Err(e) => {
+            eprintln!("lluav: cannot start the line editor: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    editor.set_helper(Some(Commands));
+    let history = history_file();
+    if let Some(path) = &history {
+        // No history yet is the normal first run.
+        let _ = editor.load_history(path);
+    }
+    let mut client = match runtime.block_on(connect(cli)) {
+        Ok(c) => Some(c),
+        Err(e) => {
+            eprintln!("lluav: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    println!(
+        "connected to {}. `help` lists the commands, `help NAME` shows one; Tab completes; Ctrl-D quits.",
+        cli.url
+    );
+    loop {
+        let line = match editor.readline("lluav> ") {
+            Ok(line) => line,
+            Err(ReadlineError::Interrupted) => continue,
+            Err(ReadlineError::Eof) => break,
+            Err(e) => {
+                eprintln!("lluav: {e}");
+                break;
+            }
+        };
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        // Duplicates and other refusals of the history are not worth a word.
+        let _ = editor.add_history_entry(line);
+        match line.split_once(' ').map_or((line, ""), |(a, b)| (a, b.trim())) {
+            ("quit" | "exit", _) => break,
+            ("help", "") => print_table(),
+            ("help", name) => print_command(name),
+            _ => {
+                let reply = runtime.block_on(async {
+                    let c = match &mut client {
+                        Some(c) => c,
+                        None => client.insert(connect(cli).await?),
+                    };
+                    c.send_line(line).await
+                });
+                match reply {
+                    Ok(response) => print_response(&response),
+                    Err(e @ ClientError::Parse(_)) => eprintln!("{e}"),
+                    Err(e) => {
+                        eprintln!("lluav: {e}; the next command reconnects");
+                        client = None;
+                    }
+                }
+            }
+        }
+    }
+    if let Some(path) = &history {
+        if let Some(dir) = path.parent() {
+            let _ = std::fs::create_dir_all(dir);
+        }
+        if let Err(e) = editor.save_history(path) {
+            eprintln!("lluav: history not saved to {}: {e}", path.display());
+        }
+    }
+    if let Some(c) = client {
+        let _ = runtime.block_on(c.close());
+    }
+    ExitCode::SUCCESS
+}
+
+fn history_file() -> Option<PathBuf> {
+    let dirs = directories::ProjectDirs::from("", "", "lluav")?;
+    let dir = dirs.state_dir().unwrap_or_else(|| dirs.data_local_dir());
+    Some(dir.join("repl-history"))
+}
+
+fn print_table() {
+    let width = TABLE.iter().map(|s| s.usage.len()).max().unwrap_or(0);
+    for spec in &TABLE {
+        println!("  {:width$}  {}", spec.usage, spec.summary);
+    }
+}
+
+fn print_command(name: &str) {
+    match lluav_core::table::lookup(name) {
+        Some(spec) => {
+            println!("{}\n  {}", spec.usage, spec.summary);
+            let mut notes = Vec::new();
+            if !spec.flags.run_on_arm {
+                notes.push("refused while armed");
+            }
+            if !spec.flags.run_in_lock {
+                notes.push("refused in lock mode unless admin");
+            }
+            if spec.flags.admin_only {
+                notes.push("admin only");
+            }
+            if !notes.is_empty() {
+                println!("  ({})", notes.join("; "));
+            }
+        }
+        None => eprintln!("no command `{name}`; `help` lists them"),
+    }
+}
+
+/// Completion of command names and hints of their arguments, from core's
+/// table.
+struct Commands;
+
+impl Completer for Commands {
+    type Candidate = Pair;
+
+    fn complete(&self, line: &str, pos: usize, _: &Context<'_>) -> rustyline::Result<(usize, Vec<Pair>)> {
+        let typed = line.get(..pos).unwrap_or(line);
+        // Only the first word is a command name (or `help NAME`).
+        let (start, word) = match typed.split_once(' ') {
+            None => (0, typed),
+            Some(("help", rest)) if !rest.contains(' ') => (typed.len() - rest.len(), rest),
+            Some(_) => return Ok((pos, Vec::new())),
+        };
+        let matches = TABLE
+            .iter()
+            .filter(|s| s.name.starts_with(word))
+            .map(|s| Pair {
+                display: s.usage.to_owned(),
+                replacement: format!("{} ", s.name),
+            })
+            .collect();
+        Ok((start, matches))
+    }
+}
+
+impl Hinter for Commands {
+    type Hint = String;
+
+    fn hint(&self, line: &str, pos: usize, _: &Context<'_>) -> Option<String> {
+        if pos != line.len() {
+            return None;
+        }
+        let name = line.strip_suffix(' ')?;
+        let spec = lluav_core::table::lookup(name)?;
+        if spec.grammar == Grammar::None {
+            return None;
+        }
+        spec.usage.split_once(' ').map(|(_, args)| args.to_owned())
+    }
+}
+
+impl Highlighter for Commands {}
+impl Validator for Commands {}
+impl Helper for Commands {}

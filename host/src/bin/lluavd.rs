@@ -1,0 +1,99 @@
+//! `lluavd`: the LLUAV WebSocket daemon serving a simulated vehicle.
+//!
+//! Prints exactly one line to stdout, `listening on ws://HOST:PORT`, once it
+//! accepts connections; logs go to stderr (`RUST_LOG`, default `info`) and
+//! into the buffer `showmsg` reads. SIGINT or SIGTERM: stop accepting,
+//! answer what is in flight, flush, exit 0.
+
+use std::io::{IsTerminal as _, Write as _};
+use std::process::ExitCode;
+
+use clap::Parser;
+use lluav_host::config::{Cli, Settings};
+use lluav_host::daemon::Daemon;
+use lluav_host::recent_log::RecentLog;
+use tokio::signal::unix::{SignalKind, signal};
+use tracing::{error, info};
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
+use tracing_subscriber::{EnvFilter, fmt};
+
+/// Log lines kept for `showmsg`/`savemsg`.
+const RECENT_LOG_LINES: usize = 1000;
+
+fn main() -> ExitCode {
+    let settings = match Settings::from_cli(Cli::parse()) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("lluavd: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let log = RecentLog::new(RECENT_LOG_LINES);
+    tracing_subscriber::registry()
+        .with(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")))
+        .with(
+            fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_ansi(std::io::stderr().is_terminal()),
+        )
+        .with(log.layer())
+        .init();
+    let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("lluavd: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    runtime.block_on(run(settings, log))
+}
+
+async fn run(settings: Settings, log: RecentLog) -> ExitCode {
+    // Signal handlers go in before the "listening" line, so that a
+    // supervisor may signal as soon as it has read it.
+    let (mut term, mut int) = match (signal(SignalKind::terminate()), signal(SignalKind::interrupt())) {
+        (Ok(t), Ok(i)) => (t, i),
+        (Err(e), _) | (_, Err(e)) => {
+            eprintln!("lluavd: cannot install signal handlers: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let daemon = match Daemon::open(&settings, log).await {
+        Ok(d) => d,
+        Err(e) => {
+            eprintln!("lluavd: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let addr = match daemon.local_addr() {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("lluavd: cannot read the bound address: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    info!(%addr, data_dir = %settings.data_dir.display(), sim_speed = settings.sim_speed, "lluavd ready");
+    let mut stdout = std::io::stdout().lock();
+    if writeln!(stdout, "listening on ws://{addr}")
+        .and_then(|()| stdout.flush())
+        .is_err()
+    {
+        // Whoever started us is gone; serving anyway would be invisible.
+        return ExitCode::FAILURE;
+    }
+    drop(stdout);
+    let shutdown = async move {
+        tokio::select! {
+            _ = term.recv() => info!("SIGTERM: shutting down"),
+            _ = int.recv() => info!("SIGINT: shutting down"),
+        }
+    };
+    match daemon.run(shutdown).await {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            error!("{e}");
+            ExitCode::FAILURE
+        }
+    }
+}

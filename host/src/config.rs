@@ -1,0 +1,257 @@
+//! `lluavd`'s settings: command line, environment and an optional TOML file.
+//!
+//! Precedence: a command-line flag (or its environment variable) wins over
+//! the config file, which wins over the defaults. The password has one more
+//! source, the simulator's stored password, which [`crate::daemon`] consults
+//! when none of these gives one.
+
+use std::net::{Ipv4Addr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use clap::Parser;
+use serde::Deserialize;
+
+use crate::ws::Limits;
+
+/// The default address: loopback only, the protocol's port.
+pub const DEFAULT_BIND: SocketAddr = SocketAddr::new(std::net::IpAddr::V4(Ipv4Addr::LOCALHOST), 53001);
+
+/// `lluavd`'s command line.
+#[derive(Debug, Default, Parser)]
+#[command(
+    name = "lluavd",
+    version,
+    about = "The LLUAV WebSocket daemon, serving a simulated vehicle"
+)]
+pub struct Cli {
+    /// Address to listen on; port 0 picks a free port. [default: 127.0.0.1:53001]
+    #[arg(long, value_name = "ADDR")]
+    pub bind: Option<SocketAddr>,
+    /// Login password (1-32 printable ASCII characters, no space).
+    #[arg(long, env = "LLUAV_PASSWORD", hide_env_values = true, value_name = "PASS")]
+    pub password: Option<String>,
+    /// Where parameters, maps, images and bags live. [default: a per-user data directory]
+    #[arg(long, value_name = "DIR")]
+    pub data_dir: Option<PathBuf>,
+    /// A TOML file with any of these settings (the flags win).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Simulation time factor: 2 runs the vehicle twice as fast. [default: 1]
+    #[arg(long, value_name = "X")]
+    pub sim_speed: Option<f64>,
+    /// Allow listening beyond loopback without a password.
+    #[arg(long)]
+    pub allow_no_password: bool,
+    /// Largest message accepted, in bytes; larger closes with 1009. [default: 65536]
+    #[arg(long, value_name = "BYTES")]
+    pub max_message: Option<usize>,
+    /// Most connections served at once. [default: 256]
+    #[arg(long, value_name = "N")]
+    pub max_connections: Option<usize>,
+    /// Seconds of silence after which a connection is closed. [default: 300]
+    #[arg(long, value_name = "SECS")]
+    pub idle_timeout: Option<u64>,
+    /// Serve a WebSocket echo instead of the protocol, through the same
+    /// connection code: for the Autobahn|Testsuite only.
+    #[arg(long, hide = true)]
+    pub echo: bool,
+}
+
+/// The config file: every field optional, unknown fields refused.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileConfig {
+    /// As `--bind`.
+    pub bind: Option<SocketAddr>,
+    /// As `--password`.
+    pub password: Option<String>,
+    /// As `--data-dir`.
+    pub data_dir: Option<PathBuf>,
+    /// As `--sim-speed`.
+    pub sim_speed: Option<f64>,
+    /// As `--allow-no-password`.
+    pub allow_no_password: Option<bool>,
+    /// As `--max-message`.
+    pub max_message: Option<usize>,
+    /// As `--max-connections`.
+    pub max_connections: Option<usize>,
+    /// As `--idle-timeout`, in seconds.
+    pub idle_timeout: Option<u64>,
+    /// The login value that grants admin (protocol default `1025`).
+    pub admin_password: Option<String>,
+    /// The login value that logs out (protocol default `0315`).
+    pub logout_password: Option<String>,
+}
+
+/// Why the settings are unusable.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The config file could not be read.
+    #[error("cannot read config file {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The config file is not valid TOML for these settings.
+    #[error("invalid config file {path}: {source}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: Box<toml::de::Error>,
+    },
+    /// No data directory was given and the platform has no per-user one.
+    #[error("no per-user data directory on this system: pass --data-dir")]
+    NoDataDir,
+    /// A setting is out of range.
+    #[error("invalid setting: {0}")]
+    Invalid(&'static str),
+}
+
+/// Everything `lluavd` runs with, resolved.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    /// Address to listen on.
+    pub bind: SocketAddr,
+    /// The password from the command line, environment or config file.
+    pub password: Option<String>,
+    /// The data directory.
+    pub data_dir: PathBuf,
+    /// Simulation time factor.
+    pub sim_speed: f64,
+    /// Whether listening beyond loopback without a password is allowed.
+    pub allow_no_password: bool,
+    /// Connection limits.
+    pub limits: Limits,
+    /// The admin login value.
+    pub admin_password: String,
+    /// The logout login value.
+    pub logout_password: String,
+    /// Serve the echo handler instead of the protocol.
+    pub echo: bool,
+}
+
+impl Settings {
+    /// Settings from the command line and the config file it names.
+    pub fn from_cli(cli: Cli) -> Result<Self, ConfigError> {
+        let file = match &cli.config {
+            Some(path) => read_file(path)?,
+            None => FileConfig::default(),
+        };
+        Settings::merge(cli, file)
+    }
+
+    /// Settings from the command line over `file`.
+    pub fn merge(cli: Cli, file: FileConfig) -> Result<Self, ConfigError> {
+        let data_dir = match cli.data_dir.or(file.data_dir) {
+            Some(dir) => dir,
+            None => directories::ProjectDirs::from("", "", "lluav")
+                .ok_or(ConfigError::NoDataDir)?
+                .data_dir()
+                .to_path_buf(),
+        };
+        let sim_speed = cli.sim_speed.or(file.sim_speed).unwrap_or(1.0);
+        if !(sim_speed.is_finite() && sim_speed > 0.0) {
+            return Err(ConfigError::Invalid("--sim-speed must be a finite number > 0"));
+        }
+        let defaults = Limits::default();
+        let limits = Limits {
+            max_message: cli
+                .max_message
+                .or(file.max_message)
+                .unwrap_or(defaults.max_message),
+            max_connections: cli
+                .max_connections
+                .or(file.max_connections)
+                .unwrap_or(defaults.max_connections),
+            idle_timeout: cli
+                .idle_timeout
+                .or(file.idle_timeout)
+                .map_or(defaults.idle_timeout, Duration::from_secs),
+            ..defaults
+        };
+        if limits.max_message == 0 {
+            return Err(ConfigError::Invalid("--max-message must be > 0"));
+        }
+        if limits.max_connections == 0 {
+            return Err(ConfigError::Invalid("--max-connections must be > 0"));
+        }
+        if limits.idle_timeout.is_zero() {
+            return Err(ConfigError::Invalid("--idle-timeout must be > 0"));
+        }
+        Ok(Settings {
+            bind: cli.bind.or(file.bind).unwrap_or(DEFAULT_BIND),
+            password: cli.password.or(file.password),
+            data_dir,
+            sim_speed,
+            allow_no_password: cli.allow_no_password || file.allow_no_password.unwrap_or(false),
+            limits,
+            admin_password: file
+                .admin_password
+                .unwrap_or_else(|| lluav_core::session::DEFAULT_ADMIN_PASSWORD.to_owned()),
+            logout_password: file
+                .logout_password
+                .unwrap_or_else(|| lluav_core::session::DEFAULT_LOGOUT_PASSWORD.to_owned()),
+            echo: cli.echo,
+        })
+    }
+}
+
+fn read_file(path: &Path) -> Result<FileConfig, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: path.to_owned(),
+        source,
+    })?;
+    toml::from_str(&text).map_err(|source| ConfigError::Parse {
+        path: path.to_owned(),
+        source: Box::new(source),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cli(args: &[&str]) -> Cli {
+        Cli::try_parse_from(std::iter::once("lluavd").chain(args.iter().copied()))
+            .expect("valid command line")
+    }
+
+    #[test]
+    fn flags_win_over_the_config_file() {
+        let file: FileConfig = toml::from_str("bind = \"0.0.0.0:1\"\nsim_speed = 3.0\nmax_connections = 9\n")
+            .expect("valid TOML");
+        let s =
+            Settings::merge(cli(&["--bind", "127.0.0.1:0", "--data-dir", "/tmp/x"]), file).expect("valid");
+        assert_eq!(s.bind, "127.0.0.1:0".parse().expect("address"));
+        assert_eq!(s.sim_speed, 3.0);
+        assert_eq!(s.limits.max_connections, 9);
+        assert_eq!(s.limits.max_message, 64 * 1024);
+    }
+
+    #[test]
+    fn defaults_are_loopback_and_the_protocol_port() {
+        let s = Settings::merge(cli(&["--data-dir", "/tmp/x"]), FileConfig::default()).expect("valid");
+        assert_eq!(s.bind, DEFAULT_BIND);
+        assert_eq!(s.admin_password, "1025");
+        assert_eq!(s.logout_password, "0315");
+        assert!(!s.allow_no_password);
+    }
+
+    #[test]
+    fn unknown_config_fields_are_refused() {
+        assert!(toml::from_str::<FileConfig>("pasword = \"x\"").is_err());
+    }
+
+    #[test]
+    fn non_positive_sim_speed_is_refused() {
+        let err = Settings::merge(
+            cli(&["--sim-speed", "0", "--data-dir", "/tmp/x"]),
+            FileConfig::default(),
+        );
+        assert!(matches!(err, Err(ConfigError::Invalid(_))));
+    }
+}

@@ -1,0 +1,266 @@
+//! `lluavd` put together: a vehicle behind lluav-core's [`Server`], served
+//! over [`crate::ws`], ticked on a timer, flushed at shutdown.
+//!
+//! The daemon holds one `Server` for the vehicle behind a mutex. Critical
+//! sections are one [`Server::handle`] call per frame and one tick per
+//! [`TICK`]; no protocol logic lives here.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use lluav_core::{Auth, AuthError, Backend, Clock, Message, Outcome, Server, Session};
+use tokio::net::TcpListener;
+use tokio::runtime::{Handle, RuntimeFlavor};
+use tracing::{error, info};
+
+use crate::config::Settings;
+use crate::recent_log::RecentLog;
+use crate::sim::{SimConfig, Simulator};
+use crate::ws::{self, Echo, Handler, Limits};
+
+/// How often the vehicle is advanced.
+pub const TICK: Duration = Duration::from_millis(50);
+
+/// `ts` from the system clock.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SystemClock;
+
+impl Clock for SystemClock {
+    fn unix_ms(&self) -> i64 {
+        // A clock before 1970 is answered as 0 rather than refused: `ts` is
+        // informational and the command itself must still run.
+        SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+    }
+}
+
+/// A backend the daemon can drive: advanced in time and flushed at exit.
+pub trait Vehicle: Backend + Send + 'static {
+    /// Advances the vehicle by `dt` of wall time.
+    fn tick(&mut self, dt: Duration);
+    /// Persists anything pending.
+    fn flush(&mut self) -> std::io::Result<()>;
+    /// A password saved by an earlier `passwd`, used when none is configured.
+    fn stored_password(&self) -> Option<String> {
+        None
+    }
+}
+
+impl Vehicle for Simulator {
+    fn tick(&mut self, dt: Duration) {
+        Simulator::tick(self, dt);
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Simulator::flush(self)
+    }
+
+    fn stored_password(&self) -> Option<String> {
+        Simulator::stored_password(self)
+    }
+}
+
+/// The vehicle's protocol server, shared by every connection.
+pub type Shared<V> = Arc<Mutex<Server<V, SystemClock>>>;
+
+fn lock<V>(server: &Mutex<Server<V, SystemClock>>) -> MutexGuard<'_, Server<V, SystemClock>> {
+    // The core never panics on input and the simulator catches its own
+    // panics, so a poisoned lock means a bug elsewhere; the vehicle state
+    // is still the best there is, so keep serving it.
+    server.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// The protocol handler: every message goes through [`Server::handle`].
+pub struct Protocol<V> {
+    server: Shared<V>,
+}
+
+impl<V> Protocol<V> {
+    /// A handler serving `server`.
+    pub fn new(server: Shared<V>) -> Self {
+        Protocol { server }
+    }
+}
+
+impl<V: Vehicle> Handler for Protocol<V> {
+    type Session = Session;
+
+    fn session(&self) -> Session {
+        Session::new()
+    }
+
+    fn handle<'o>(&self, session: &mut Session, message: Message<'o>, out: &'o mut [u8]) -> Outcome<'o> {
+        // A command may touch the disk (save_param fsyncs): let tokio move
+        // the other connections off this worker meanwhile.
+        let multi_thread =
+            Handle::try_current().is_ok_and(|h| h.runtime_flavor() == RuntimeFlavor::MultiThread);
+        if multi_thread {
+            tokio::task::block_in_place(move || lock(&self.server).handle(session, message, out))
+        } else {
+            lock(&self.server).handle(session, message, out)
+        }
+    }
+}
+
+/// Why the daemon cannot start or did not stop cleanly.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    /// The data directory or the simulator's files could not be opened.
+    #[error("cannot open the simulated vehicle in {dir}: {source}")]
+    Open {
+        /// The data directory.
+        dir: std::path::PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Listening beyond loopback needs a password or `--allow-no-password`.
+    #[error(
+        "refusing to listen on {0} without a password: anyone who can reach it could fly the vehicle. \
+         Set --password (or LLUAV_PASSWORD, or `password` in the config file), \
+         bind to 127.0.0.1, or pass --allow-no-password"
+    )]
+    NoPassword(SocketAddr),
+    /// The password or the special login values break the rules.
+    #[error("invalid password settings: {0}")]
+    Password(&'static str),
+    /// The address could not be bound.
+    #[error("cannot listen on {addr}: {source}")]
+    Bind {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Persisting state at shutdown failed.
+    #[error("cannot persist the vehicle's state at shutdown: {0}")]
+    Flush(std::io::Error),
+}
+
+enum Mode<V> {
+    Protocol(Server<V, SystemClock>),
+    Echo,
+}
+
+/// A daemon that is listening and not yet serving.
+pub struct Daemon<V> {
+    listener: TcpListener,
+    limits: Limits,
+    mode: Mode<V>,
+}
+
+impl Daemon<Simulator> {
+    /// Opens the simulated vehicle (unless `settings.echo`), decides the
+    /// password and binds the listener.
+    pub async fn open(settings: &Settings, log: RecentLog) -> Result<Self, DaemonError> {
+        let vehicle = if settings.echo {
+            None
+        } else {
+            let config = SimConfig {
+                data_dir: settings.data_dir.clone(),
+                speed: settings.sim_speed,
+                log,
+            };
+            let sim = Simulator::open(config).map_err(|source| DaemonError::Open {
+                dir: settings.data_dir.clone(),
+                source,
+            })?;
+            Some(sim)
+        };
+        Daemon::with_vehicle(settings, vehicle).await
+    }
+}
+
+impl<V: Vehicle> Daemon<V> {
+    /// A daemon serving `vehicle`, or the echo handler when `vehicle` is
+    /// `None`.
+    pub async fn with_vehicle(settings: &Settings, vehicle: Option<V>) -> Result<Self, DaemonError> {
+        let mode = match vehicle {
+            Some(v) => {
+                let auth = auth(settings, v.stored_password())?;
+                Mode::Protocol(Server::new(v, SystemClock, auth))
+            }
+            None => Mode::Echo,
+        };
+        let listener = TcpListener::bind(settings.bind)
+            .await
+            .map_err(|source| DaemonError::Bind {
+                addr: settings.bind,
+                source,
+            })?;
+        Ok(Daemon {
+            listener,
+            limits: settings.limits,
+            mode,
+        })
+    }
+
+    /// The address actually bound (the port, when 0 was asked for).
+    pub fn local_addr(&self) -> std::io::Result<SocketAddr> {
+        self.listener.local_addr()
+    }
+
+    /// Serves until `shutdown` completes, then lets connections finish and
+    /// flushes the vehicle's state.
+    pub async fn run(self, shutdown: impl Future<Output = ()>) -> Result<(), DaemonError> {
+        let server = match self.mode {
+            Mode::Echo => {
+                info!("serving the echo handler (Autobahn mode)");
+                ws::serve(self.listener, Arc::new(Echo), self.limits, shutdown).await;
+                return Ok(());
+            }
+            Mode::Protocol(server) => Arc::new(Mutex::new(server)),
+        };
+        let ticker = tokio::spawn(tick(Arc::clone(&server)));
+        let handler = Arc::new(Protocol::new(Arc::clone(&server)));
+        ws::serve(self.listener, handler, self.limits, shutdown).await;
+        ticker.abort();
+        let flushed = tokio::task::spawn_blocking(move || lock(&server).backend_mut().flush()).await;
+        match flushed {
+            Ok(Ok(())) => {
+                info!("state flushed; bye");
+                Ok(())
+            }
+            Ok(Err(e)) => {
+                error!(error = %e, "flush at shutdown failed");
+                Err(DaemonError::Flush(e))
+            }
+            Err(join) => Err(DaemonError::Flush(std::io::Error::other(join))),
+        }
+    }
+}
+
+/// The login state: the configured password, else the vehicle's stored
+/// one, else none — which is refused beyond loopback unless allowed.
+fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth, DaemonError> {
+    let password = settings.password.clone().or(stored);
+    if password.is_none() && !settings.bind.ip().is_loopback() && !settings.allow_no_password {
+        return Err(DaemonError::NoPassword(settings.bind));
+    }
+    Auth::with_specials(
+        password.as_deref(),
+        &settings.admin_password,
+        &settings.logout_password,
+    )
+    .map_err(|e| {
+        DaemonError::Password(match e {
+            AuthError::BadPassword => "a password must be 1-32 printable ASCII characters without spaces",
+            AuthError::Ambiguous => "the password and the admin and logout values must all differ",
+        })
+    })
+}
+
+/// Advances the vehicle every [`TICK`] by the wall time that really passed.
+async fn tick<V: Vehicle>(server: Shared<V>) {
+    let mut interval = tokio::time::interval(TICK);
+    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut last = Instant::now();
+    loop {
+        interval.tick().await;
+        let now = Instant::now();
+        lock(&server).backend_mut().tick(now - last);
+        last = now;
+    }
+}

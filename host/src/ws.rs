@@ -1,0 +1,373 @@
+//! The daemon's WebSocket layer: accepting, framing, limits and shutdown.
+//!
+//! Everything here is about sockets; nothing is about the protocol. Each
+//! connection runs in its own task and hands every complete message to a
+//! [`Handler`] as a core [`Message`], then carries out the [`Outcome`]: a
+//! text reply, a close code, or both. The protocol handler
+//! ([`crate::daemon::Protocol`]) and the Autobahn echo handler ([`Echo`])
+//! share this code path, so what Autobahn tests is what clients get.
+//!
+//! Mapping from tungstenite to the core (DESIGN.md, "WebSocket behaviour"):
+//! a message over the limit is [`Message::Oversized`] (the core answers
+//! 1009), a binary message is [`Message::Binary`] (1003), a text message
+//! whose bytes are not UTF-8 — which tungstenite reports as an error before
+//! the message exists — closes with 1007, any other protocol violation with
+//! 1002. Pings are answered by tungstenite on the next read.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use futures_util::{FutureExt, SinkExt, StreamExt};
+use lluav_core::{CloseCode, Message, Outcome};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{Semaphore, watch};
+use tokio::task::JoinSet;
+use tokio::time::timeout;
+use tokio_tungstenite::WebSocketStream;
+use tokio_tungstenite::tungstenite::handshake::server::{ErrorResponse, Request, Response};
+use tokio_tungstenite::tungstenite::http::StatusCode;
+use tokio_tungstenite::tungstenite::protocol::frame::CloseFrame;
+use tokio_tungstenite::tungstenite::protocol::{WebSocketConfig, frame::coding::CloseCode as WsCloseCode};
+use tokio_tungstenite::tungstenite::{Error as WsError, Message as WsMessage};
+use tracing::{debug, info, warn};
+
+/// What a connection does with each complete message.
+pub trait Handler: Send + Sync + 'static {
+    /// Per-connection state (for the protocol: the login [`lluav_core::Session`]).
+    type Session: Send + 'static;
+
+    /// State for a new connection.
+    fn session(&self) -> Self::Session;
+
+    /// Handles one message; the reply may borrow from `message` or `out`.
+    /// `out` holds [`Limits::response_capacity`] bytes.
+    fn handle<'o>(&self, session: &mut Self::Session, message: Message<'o>, out: &'o mut [u8])
+    -> Outcome<'o>;
+}
+
+/// Echoes every text message back unchanged and otherwise behaves like the
+/// protocol's close policy (binary → 1003, oversized → 1009). Used to run the
+/// Autobahn|Testsuite against this module's connection code.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Echo;
+
+impl Handler for Echo {
+    type Session = ();
+
+    fn session(&self) {}
+
+    fn handle<'o>(&self, _: &mut (), message: Message<'o>, _: &'o mut [u8]) -> Outcome<'o> {
+        match message {
+            Message::Text(bytes) => match std::str::from_utf8(bytes) {
+                Ok(text) => Outcome::Reply(text),
+                Err(_) => Outcome::Close(CloseCode::InvalidPayload),
+            },
+            Message::Binary(_) => Outcome::Close(CloseCode::Unsupported),
+            Message::Oversized => Outcome::Close(CloseCode::TooBig),
+        }
+    }
+}
+
+/// Connection limits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest message (and frame) accepted, in bytes; larger closes with 1009.
+    pub max_message: usize,
+    /// Most connections served at once; more are refused with HTTP 503.
+    pub max_connections: usize,
+    /// A connection that sends nothing for this long is closed.
+    pub idle_timeout: Duration,
+    /// Bytes of the per-connection response buffer.
+    pub response_capacity: usize,
+    /// Time allowed for the HTTP upgrade, and for a peer to take one reply
+    /// or answer a close.
+    pub io_timeout: Duration,
+    /// At shutdown, time allowed for connections to finish before they are
+    /// dropped.
+    pub shutdown_grace: Duration,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_message: 64 * 1024,
+            max_connections: 256,
+            idle_timeout: Duration::from_secs(300),
+            response_capacity: 64 * 1024,
+            io_timeout: Duration::from_secs(10),
+            shutdown_grace: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Frames a connection answers at shutdown if they had already arrived:
+/// enough for any honest pipeline, bounded so that a client streaming
+/// requests cannot hold the shutdown open.
+const MAX_FRAMES_AFTER_SHUTDOWN: usize = 256;
+
+/// Refusals (HTTP 503) in progress at once; beyond it a connection over
+/// the limit is dropped without an answer.
+const MAX_REFUSALS: usize = 64;
+
+/// Serves WebSocket connections on `listener` with `handler` until
+/// `shutdown` completes, then stops accepting, lets every connection answer
+/// the frames it already received, closes them with 1001 and returns once
+/// they are gone (or [`Limits::shutdown_grace`] has passed).
+pub async fn serve<H: Handler>(
+    listener: TcpListener,
+    handler: Arc<H>,
+    limits: Limits,
+    shutdown: impl Future<Output = ()>,
+) {
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let slots = Arc::new(Semaphore::new(limits.max_connections));
+    let refusals = Arc::new(Semaphore::new(MAX_REFUSALS));
+    let mut tasks = JoinSet::new();
+    tokio::pin!(shutdown);
+    loop {
+        tokio::select! {
+            () = &mut shutdown => break,
+            Some(_) = tasks.join_next(), if !tasks.is_empty() => {}
+            accepted = listener.accept() => {
+                let (stream, peer) = match accepted {
+                    Ok(a) => a,
+                    Err(e) => {
+                        // Typically EMFILE: back off instead of spinning.
+                        warn!(error = %e, "accept failed");
+                        tokio::time::sleep(Duration::from_millis(100)).await;
+                        continue;
+                    }
+                };
+                if let Err(e) = stream.set_nodelay(true) {
+                    debug!(%peer, error = %e, "TCP_NODELAY not set");
+                }
+                match Arc::clone(&slots).try_acquire_owned() {
+                    Ok(slot) => {
+                        let handler = Arc::clone(&handler);
+                        let stop = stop_rx.clone();
+                        tasks.spawn(async move {
+                            connection(stream, peer, &*handler, limits, stop).await;
+                            drop(slot);
+                        });
+                    }
+                    Err(_) => match Arc::clone(&refusals).try_acquire_owned() {
+                        Ok(permit) => {
+                            tasks.spawn(async move {
+                                refuse(stream, peer, limits).await;
+                                drop(permit);
+                            });
+                        }
+                        Err(_) => warn!(%peer, "connection limit reached; dropped"),
+                    },
+                }
+            }
+        }
+    }
+    drop(listener);
+    info!(
+        connections = limits.max_connections - slots.available_permits(),
+        "shutting down"
+    );
+    let _ = stop_tx.send(true);
+    let drained = timeout(limits.shutdown_grace, async {
+        while tasks.join_next().await.is_some() {}
+    })
+    .await;
+    if drained.is_err() {
+        warn!(
+            left = tasks.len(),
+            "connections still open after the grace period; dropping them"
+        );
+        tasks.shutdown().await;
+    }
+}
+
+/// Answers a connection over the limit with HTTP 503 instead of a hang.
+async fn refuse(stream: TcpStream, peer: SocketAddr, limits: Limits) {
+    warn!(%peer, max = limits.max_connections, "connection limit reached; refusing");
+    let reject = |_: &Request, _: Response| -> Result<Response, ErrorResponse> {
+        let mut response = ErrorResponse::new(Some(format!(
+            "lluavd: connection limit ({}) reached, try again later\n",
+            limits.max_connections
+        )));
+        *response.status_mut() = StatusCode::SERVICE_UNAVAILABLE;
+        Err(response)
+    };
+    let _ = timeout(
+        limits.io_timeout,
+        tokio_tungstenite::accept_hdr_async(stream, reject),
+    )
+    .await;
+}
+
+/// What the read loop saw next.
+enum Event {
+    /// A complete message, or tungstenite's verdict on one.
+    Frame(Result<WsMessage, WsError>),
+    /// The peer closed the TCP stream.
+    Ended,
+    /// Nothing arrived within the idle timeout.
+    Idle,
+    /// The daemon is shutting down.
+    Shutdown,
+}
+
+/// One connection, from the HTTP upgrade to the closed socket.
+async fn connection<H: Handler>(
+    stream: TcpStream,
+    peer: SocketAddr,
+    handler: &H,
+    limits: Limits,
+    mut stop: watch::Receiver<bool>,
+) {
+    let config = WebSocketConfig::default()
+        .max_message_size(Some(limits.max_message))
+        .max_frame_size(Some(limits.max_message))
+        .read_buffer_size(16 * 1024)
+        .write_buffer_size(0);
+    let accepted = timeout(
+        limits.io_timeout,
+        tokio_tungstenite::accept_async_with_config(stream, Some(config)),
+    )
+    .await;
+    let mut ws = match accepted {
+        Ok(Ok(ws)) => ws,
+        Ok(Err(e)) => {
+            debug!(%peer, error = %e, "WebSocket handshake failed");
+            return;
+        }
+        Err(_) => {
+            debug!(%peer, "WebSocket handshake timed out");
+            return;
+        }
+    };
+    debug!(%peer, "connected");
+    let mut session = handler.session();
+    let mut out = vec![0u8; limits.response_capacity];
+    loop {
+        let event = tokio::select! {
+            biased;
+            _ = stop.wait_for(|stopping| *stopping) => Event::Shutdown,
+            next = timeout(limits.idle_timeout, ws.next()) => match next {
+                Ok(Some(frame)) => Event::Frame(frame),
+                Ok(None) => Event::Ended,
+                Err(_) => Event::Idle,
+            },
+        };
+        let verdict = match event {
+            Event::Frame(frame) => on_frame(&mut ws, handler, &mut session, &mut out, frame, limits).await,
+            Event::Ended => Flow::Done,
+            Event::Idle => {
+                debug!(%peer, "idle timeout");
+                Flow::Close(WsCloseCode::Normal, "idle timeout")
+            }
+            Event::Shutdown => {
+                let mut verdict = Flow::Close(WsCloseCode::Away, "lluavd is shutting down");
+                // Answer what had already arrived; the sender is still
+                // waiting for those replies.
+                for _ in 0..MAX_FRAMES_AFTER_SHUTDOWN {
+                    let Some(Some(frame)) = ws.next().now_or_never() else {
+                        break;
+                    };
+                    match on_frame(&mut ws, handler, &mut session, &mut out, frame, limits).await {
+                        Flow::Continue => {}
+                        other => {
+                            verdict = other;
+                            break;
+                        }
+                    }
+                }
+                verdict
+            }
+        };
+        match verdict {
+            Flow::Continue => {}
+            Flow::Done => break,
+            Flow::Close(code, reason) => {
+                close(&mut ws, code, reason, limits).await;
+                break;
+            }
+        }
+    }
+    debug!(%peer, "disconnected");
+}
+
+/// What the connection does after a frame.
+enum Flow {
+    /// Read the next message.
+    Continue,
+    /// The connection is over; nothing more to send.
+    Done,
+    /// Close with this code and reason, then stop.
+    Close(WsCloseCode, &'static str),
+}
+
+async fn on_frame<H: Handler>(
+    ws: &mut WebSocketStream<TcpStream>,
+    handler: &H,
+    session: &mut H::Session,
+    out: &mut [u8],
+    frame: Result<WsMessage, WsError>,
+    limits: Limits,
+) -> Flow {
+    let outcome = match &frame {
+        Ok(WsMessage::Text(text)) => handler.handle(session, Message::Text(text.as_bytes()), out),
+        Ok(WsMessage::Binary(bytes)) => handler.handle(session, Message::Binary(bytes), out),
+        // tungstenite queued the pong (or the close reply) and sends it on
+        // the next read; a close from the peer ends the stream right after.
+        Ok(WsMessage::Ping(_) | WsMessage::Pong(_) | WsMessage::Close(_) | WsMessage::Frame(_)) => {
+            return Flow::Continue;
+        }
+        Err(WsError::Capacity(_)) => handler.handle(session, Message::Oversized, out),
+        Err(WsError::Utf8(_)) => return Flow::Close(WsCloseCode::Invalid, ""),
+        Err(WsError::Protocol(e)) => {
+            debug!(error = %e, "WebSocket protocol violation");
+            return Flow::Close(WsCloseCode::Protocol, "");
+        }
+        Err(e) => {
+            debug!(error = %e, "connection lost");
+            return Flow::Done;
+        }
+    };
+    let (reply, code) = match outcome {
+        Outcome::Reply(text) => (Some(text), None),
+        Outcome::ReplyThenClose(text, code) => (Some(text), Some(code)),
+        Outcome::Close(code) => (None, Some(code)),
+    };
+    if let Some(text) = reply {
+        let sent = timeout(limits.io_timeout, ws.send(WsMessage::text(text))).await;
+        match sent {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => {
+                debug!(error = %e, "reply not sent");
+                return Flow::Done;
+            }
+            Err(_) => {
+                debug!("peer does not take replies; dropping it");
+                return Flow::Done;
+            }
+        }
+    }
+    match code {
+        Some(code) => Flow::Close(WsCloseCode::from(code.code()), ""),
+        None => Flow::Continue,
+    }
+}
+
+/// Sends a close frame and waits (bounded) for the peer's, so the close
+/// handshake completes; anything the peer sends meanwhile is discarded.
+async fn close(ws: &mut WebSocketStream<TcpStream>, code: WsCloseCode, reason: &'static str, limits: Limits) {
+    let frame = CloseFrame {
+        code,
+        reason: reason.into(),
+    };
+    let handshake = async {
+        if ws.close(Some(frame)).await.is_err() {
+            return;
+        }
+        while let Some(Ok(_)) = ws.next().await {}
+    };
+    let _ = timeout(limits.io_timeout, handshake).await;
+}

@@ -1,0 +1,203 @@
+//! The protocol as a client sees it from lluavd: login and gates, a whole
+//! flight of the simulated vehicle, and every command of the table.
+
+use lluav_core::{CommandId, Grammar, TABLE};
+use lluav_tests::{Conn, Lluavd, Options, wait_for_state};
+use serde_json::Value;
+
+const PASSWORD: &str = "s3cret";
+
+fn msg(r: &Value) -> &str {
+    r["msg"].as_str().unwrap_or("")
+}
+
+#[tokio::test]
+async fn login_and_gates_follow_the_design() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let mut user = Conn::connect(&daemon.url).await;
+
+    let r = user.request("state").await;
+    assert_eq!(
+        (r["ret"].as_i64(), r["cmd"].as_i64(), msg(&r)),
+        (Some(-1), Some(2), "Login first!")
+    );
+    let r = user.request("no_such_command").await;
+    assert_eq!(
+        (r["cmd"].as_i64(), msg(&r)),
+        (Some(0), "Login first!"),
+        "login gate comes first"
+    );
+    let r = user.request("login wrong").await;
+    assert_eq!((r["ret"].as_i64(), msg(&r)), (Some(-1), "Wrong password!"));
+    let r = user.request(&format!("login {PASSWORD}")).await;
+    assert_eq!(
+        (r["ret"].as_i64(), &r["logged_in"], &r["admin"]),
+        (Some(0), &Value::Bool(true), &Value::Bool(false))
+    );
+    let r = user.request("admin_lock").await;
+    assert_eq!((r["ret"].as_i64(), msg(&r)), (Some(-1), "Admin only!"));
+
+    let mut admin = Conn::connect(&daemon.url).await;
+    let r = admin.request("login 1025").await;
+    assert_eq!((r["ret"].as_i64(), &r["admin"]), (Some(0), &Value::Bool(true)));
+    let r = admin.request("admin_lock").await;
+    assert_eq!(
+        (r["ret"].as_i64(), &r["lock_mode"]),
+        (Some(0), &Value::Bool(true))
+    );
+
+    // Lock mode is vehicle-wide: the user's session sees it too.
+    let r = user.request("set_param takeoff_alt:3").await;
+    assert_eq!(
+        (r["ret"].as_i64(), msg(&r)),
+        (Some(-1), "CMD not permitted to run in LOCK mode!")
+    );
+    let r = user.request("state").await;
+    assert_eq!(r["state"]["lock_mode"], true, "{r}");
+    let r = admin.request("set_param takeoff_alt:3").await;
+    assert_eq!(r["ret"], 0, "admins skip the lock gate: {r}");
+
+    let r = admin.request("admin_unlock").await;
+    assert_eq!(
+        (r["ret"].as_i64(), &r["lock_mode"]),
+        (Some(0), &Value::Bool(false))
+    );
+    let r = user.request("set_param takeoff_alt:4").await;
+    assert_eq!(r["ret"], 0, "{r}");
+
+    let r = user.request("login 0315").await;
+    assert_eq!(
+        (r["ret"].as_i64(), &r["logged_in"]),
+        (Some(0), &Value::Bool(false))
+    );
+    let r = user.request("state").await;
+    assert_eq!(msg(&r), "Login first!");
+    user.close().await;
+    admin.close().await;
+}
+
+#[tokio::test]
+async fn a_whole_flight_takes_off_follows_setpoints_and_lands() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let options = Options {
+        sim_speed: Some(10.0),
+        ..Options::password(PASSWORD)
+    };
+    let daemon = Lluavd::start(dir.path(), &options);
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+
+    let r = c.request("state").await;
+    assert_eq!(
+        (&r["state"]["armed"], &r["state"]["fsm"]),
+        (&Value::Bool(false), &Value::from("disarmed"))
+    );
+    let r = c.request("takeoff").await;
+    assert_eq!(r["ret"], 0, "{r}");
+    let r = c.request("state").await;
+    assert_eq!(r["state"]["armed"], true, "takeoff arms at once: {r}");
+    wait_for_state(&mut c, "hover", |s| s["fsm"] == "hover").await;
+
+    let r = c.request("set_sp_ned 1.0:2.0:-3.0:0.5").await;
+    assert_eq!(r["ret"], 0, "{r}");
+    let r = c.request("show_sp").await;
+    assert_eq!(r["ret"], 0, "{r}");
+
+    let r = c.request("reboot_node").await;
+    assert_eq!(
+        (r["ret"].as_i64(), r["cmd"].as_i64(), msg(&r)),
+        (Some(-1), Some(69), "Not allow when vehicle is ARMED!")
+    );
+    let r = c.request("takeoff").await;
+    assert_eq!(msg(&r), "Not allow when vehicle is ARMED!");
+
+    let r = c.request("land").await;
+    assert_eq!(r["ret"], 0, "{r}");
+    wait_for_state(&mut c, "landed and disarmed", |s| s["armed"] == false).await;
+    let r = c.request("disarm").await;
+    assert_eq!(r["ret"], 0, "{r}");
+    let r = c.request("state").await;
+    assert_eq!(r["state"]["fsm"], "disarmed", "{r}");
+    let r = c.request("reboot_node").await;
+    assert_ne!(msg(&r), "Not allow when vehicle is ARMED!", "disarmed again: {r}");
+    c.close().await;
+}
+
+/// A valid argument string for each grammar, so that every command reaches
+/// the backend.
+fn sample_args(grammar: Grammar) -> &'static str {
+    match grammar {
+        Grammar::None | Grammar::OptName => "",
+        Grammar::Flag => "1",
+        Grammar::OptCount => "5",
+        Grammar::Pwm => "1500",
+        Grammar::Amount => "12.5",
+        Grammar::OptAmount => "0",
+        Grammar::Angle => "-30",
+        Grammar::Name => "sample",
+        Grammar::Path => "sample/dir",
+        Grammar::Text => "sample text",
+        Grammar::Secret => "1025",
+        Grammar::NewPassword => "n3wpass",
+        Grammar::ParamName => "takeoff_alt",
+        Grammar::SetParam => "takeoff_alt:3.5",
+        Grammar::Setpoint => "1.0:2.0:-3.0:0.5",
+        Grammar::Point => "10.0:5.0:-2.0",
+        Grammar::Pose => "1.0,2.0,-3.0,0.5",
+        Grammar::Zyhk => "1.5,2.0,2.5",
+        Grammar::Mission => r#"1001:{"waypoints":[{"x":1,"y":2,"z":-3},{"x":4,"y":5,"z":-3,"yaw":1.5}]}"#,
+        Grammar::MwExec => "1001:1,2",
+        Grammar::Ai1Mission => "task-1:missions/a.json",
+    }
+}
+
+#[tokio::test]
+async fn every_command_of_the_table_gets_exactly_one_valid_response() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let mut c = Conn::login(&daemon.url, "1025").await;
+    for spec in &TABLE {
+        let args = sample_args(spec.grammar);
+        let frame = if args.is_empty() {
+            spec.name.to_owned()
+        } else {
+            format!("{} {args}", spec.name)
+        };
+        assert!(
+            lluav_core::parse(&frame).is_ok(),
+            "the sample `{frame}` must be valid"
+        );
+        let r = c.request(&frame).await;
+        assert_eq!(
+            r["cmd"].as_i64(),
+            Some(i64::from(u8::from(spec.id))),
+            "`{frame}`: {r}"
+        );
+        assert!(!msg(&r).starts_with("Invalid arguments"), "`{frame}`: {r}");
+        assert_ne!(r["ret"], -100, "`{frame}` hit a fault in the simulator: {r}");
+        if spec.id == CommandId::Help {
+            let names: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
+            assert_eq!(r["commands"], serde_json::json!(names), "help lists the table");
+        }
+        if spec.id == CommandId::State {
+            for key in ["armed", "fsm", "lock_mode"] {
+                assert!(!r["state"][key].is_null(), "state has `{key}`: {r}");
+            }
+        }
+        // Keep the vehicle on the ground and awake so that the next command
+        // reaches the backend instead of a gate.
+        let s = c.request("state").await;
+        if s["state"]["armed"] == true {
+            let r = c.request("disarm").await;
+            assert_eq!(r["ret"], 0, "{r}");
+        }
+        if s["state"]["fsm"] == "sleep" {
+            let r = c.request("wakeup").await;
+            assert_eq!(r["ret"], 0, "{r}");
+        }
+    }
+    // Nothing more arrives: one response per request.
+    let r = c.request("ver").await;
+    assert_eq!(r["cmd"], u8::from(CommandId::Ver), "{r}");
+    c.close().await;
+}

@@ -1,0 +1,196 @@
+//! lluavd's WebSocket behaviour (DESIGN.md, "WebSocket behaviour") and its
+//! limits, over real sockets.
+
+use futures_util::future::join_all;
+use lluav_tests::{Conn, Lluavd, Options, Received};
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::protocol::frame::coding::Data;
+
+const PASSWORD: &str = "s3cret";
+
+async fn daemon_with(args: &[&str]) -> (tempfile::TempDir, Lluavd) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let options = Options {
+        args: args.iter().map(|s| (*s).to_owned()).collect(),
+        ..Options::password(PASSWORD)
+    };
+    let daemon = Lluavd::start(dir.path(), &options);
+    (dir, daemon)
+}
+
+#[tokio::test]
+async fn binary_message_closes_with_1003() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    c.send_raw(Message::binary(b"state".to_vec())).await;
+    assert_eq!(c.close_code().await, Some(1003));
+}
+
+#[tokio::test]
+async fn invalid_utf8_closes_with_1007() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    c.send_text_frame(b"state \xff\xfe", Data::Text, true).await;
+    assert_eq!(c.close_code().await, Some(1007));
+}
+
+#[tokio::test]
+async fn message_over_the_limit_closes_with_1009() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    let big = format!("plan {}", "x".repeat(64 * 1024));
+    c.send(&big).await;
+    assert_eq!(c.close_code().await, Some(1009));
+}
+
+#[tokio::test]
+async fn fragmented_message_over_the_limit_closes_with_1009() {
+    let (_dir, daemon) = daemon_with(&["--max-message", "1000"]).await;
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    let chunk = [b'x'; 600];
+    c.send_text_frame(b"plan ", Data::Text, false).await;
+    c.send_text_frame(&chunk, Data::Continue, false).await;
+    c.send_text_frame(&chunk, Data::Continue, true).await;
+    assert_eq!(c.close_code().await, Some(1009));
+}
+
+#[tokio::test]
+async fn ping_gets_pong_with_the_same_payload() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut c = Conn::connect(&daemon.url).await;
+    c.send_raw(Message::Ping(b"are you there".to_vec().into())).await;
+    assert_eq!(c.recv().await, Received::Pong(b"are you there".to_vec()));
+    // The connection is still usable afterwards.
+    let r = c.request(&format!("login {PASSWORD}")).await;
+    assert_eq!(r["ret"], 0, "{r}");
+}
+
+#[tokio::test]
+async fn fragmented_text_is_reassembled_into_one_request() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    c.send_text_frame(b"set_sp", Data::Text, false).await;
+    c.send_raw(Message::Ping(b"mid".to_vec().into())).await;
+    c.send_text_frame(b"_ned 1.0:2.0", Data::Continue, false).await;
+    c.send_text_frame(b":-3.0:0.5", Data::Continue, true).await;
+    assert_eq!(c.recv().await, Received::Pong(b"mid".to_vec()));
+    let r = c.response().await;
+    assert_eq!((r["ret"].as_i64(), r["cmd"].as_i64()), (Some(0), Some(23)), "{r}");
+}
+
+#[tokio::test]
+async fn five_wrong_passwords_are_answered_then_closed_with_1008() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut c = Conn::connect(&daemon.url).await;
+    for _ in 0..5 {
+        let r = c.request("login guess").await;
+        assert_eq!(r["msg"], "Wrong password!", "{r}");
+    }
+    assert_eq!(c.close_code().await, Some(1008));
+}
+
+#[tokio::test]
+async fn client_close_is_answered_with_a_close() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut c = Conn::connect(&daemon.url).await;
+    c.send_raw(Message::Close(None)).await;
+    assert!(
+        matches!(c.recv().await, Received::Close(_)),
+        "the server completes the handshake"
+    );
+}
+
+#[tokio::test]
+async fn pipelined_requests_are_answered_in_order() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    // A mix of commands with distinct ids, all sent before reading any reply.
+    let frames = [
+        "state",
+        "ver",
+        "param",
+        "get_param takeoff_alt",
+        "show_sp",
+        "help",
+        "nonsense",
+        "machineid",
+    ];
+    let expected: Vec<i64> = vec![2, 5, 3, 4, 15, 97, 0, 9];
+    for round in 0..25 {
+        for f in frames {
+            c.send(f).await;
+        }
+        let mut got = Vec::new();
+        for _ in frames {
+            got.push(c.response().await["cmd"].as_i64().unwrap_or(-1));
+        }
+        assert_eq!(got, expected, "round {round}");
+    }
+}
+
+#[tokio::test]
+async fn a_hundred_and_fifty_concurrent_sessions_are_served() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let url = daemon.url.clone();
+    // All connections are open at once before any of them sends a request.
+    let mut conns = join_all((0..150).map(|_| Conn::login(&url, PASSWORD))).await;
+    let answers = join_all(conns.iter_mut().enumerate().map(|(i, c)| async move {
+        let mut ok = 0;
+        for _ in 0..5 {
+            let r = c.request("state").await;
+            assert_eq!(r["ret"], 0, "session {i}: {r}");
+            ok += 1;
+        }
+        ok
+    }))
+    .await;
+    assert_eq!(answers.iter().sum::<i32>(), 150 * 5);
+    join_all(conns.into_iter().map(Conn::close)).await;
+}
+
+#[tokio::test]
+async fn a_stalled_client_does_not_delay_the_others() {
+    let (_dir, daemon) = daemon_with(&[]).await;
+    let mut stalled = Conn::login(&daemon.url, PASSWORD).await;
+    // Half a message that never completes, and many requests never read.
+    stalled.send_text_frame(b"sta", Data::Text, false).await;
+    let mut other = Conn::login(&daemon.url, PASSWORD).await;
+    for _ in 0..50 {
+        let r = other.request("state").await;
+        assert_eq!(r["ret"], 0, "{r}");
+    }
+}
+
+#[tokio::test]
+async fn connections_over_the_limit_are_refused_with_503() {
+    let (_dir, daemon) = daemon_with(&["--max-connections", "3"]).await;
+    let mut held = Vec::new();
+    for _ in 0..3 {
+        held.push(Conn::login(&daemon.url, PASSWORD).await);
+    }
+    let refused = tokio_tungstenite::connect_async(daemon.url.as_str()).await;
+    match refused {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => assert_eq!(response.status(), 503),
+        other => panic!("expected HTTP 503, got {:?}", other.map(|_| ())),
+    }
+    // A slot frees up when a connection closes.
+    if let Some(c) = held.pop() {
+        c.close().await;
+    }
+    let mut again = None;
+    for _ in 0..600 {
+        if let Ok((ws, _)) = tokio_tungstenite::connect_async(daemon.url.as_str()).await {
+            again = Some(ws);
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert!(again.is_some(), "a freed slot is reused");
+}
+
+#[tokio::test]
+async fn idle_connections_are_closed() {
+    let (_dir, daemon) = daemon_with(&["--idle-timeout", "1"]).await;
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    assert_eq!(c.close_code().await, Some(1000));
+}
