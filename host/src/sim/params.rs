@@ -60,7 +60,7 @@ impl Value {
         }
     }
 
-    fn from_json(self, v: &serde_json::Value) -> Option<Value> {
+    fn json_like(self, v: &serde_json::Value) -> Option<Value> {
         match self {
             Value::Int(_) => v.as_i64().map(Value::Int),
             Value::Float(_) => v.as_f64().map(Value::Float),
@@ -265,7 +265,7 @@ fn read_file(file: &Path) -> io::Result<Vec<Value>> {
         .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, format!("{}: {e}", file.display())))?;
     for (name, json) in &map {
         let def = DEFS.iter().find(|d| d.name == name);
-        match def.and_then(|d| Some((d, d.default.from_json(json)?))) {
+        match def.and_then(|d| Some((d, d.default.json_like(json)?))) {
             Some((def, value)) if in_range(def, value) => values[def.key as usize] = value,
             _ => {
                 tracing::warn!(file = %file.display(), param = %name, value = %json, "ignoring saved parameter")

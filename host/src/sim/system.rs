@@ -23,6 +23,9 @@ pub struct SysInfo {
 }
 
 /// Reads `sysinfo(2)`.
+// `c_ulong` and the statvfs counters are 32-bit on some targets, so the
+// widening conversions are kept even where they are no-ops on x86_64.
+#[allow(clippy::useless_conversion)]
 pub fn sysinfo() -> io::Result<SysInfo> {
     // SAFETY: `libc::sysinfo` is a plain C struct; all-zero is a valid value.
     let mut info: libc::sysinfo = unsafe { std::mem::zeroed() };
@@ -44,6 +47,7 @@ pub fn sysinfo() -> io::Result<SysInfo> {
 }
 
 /// Bytes available to unprivileged users on the filesystem holding `path`.
+#[allow(clippy::useless_conversion)]
 pub fn available_bytes(path: &Path) -> io::Result<u64> {
     let c_path = CString::new(path.as_os_str().as_bytes())
         .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "path holds a NUL byte"))?;
