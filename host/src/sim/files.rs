@@ -57,10 +57,21 @@ impl DataDir {
     pub fn open(root: &Path) -> io::Result<DataDir> {
         fs::create_dir_all(root)?;
         let root = fs::canonicalize(root)?;
+        let data = DataDir { root };
         for area in Area::ALL {
-            fs::create_dir_all(root.join(area.dir_name()))?;
+            let dir = data.area(area);
+            fs::create_dir_all(&dir)?;
+            // Listing and clearing read these directories directly, so a
+            // subdirectory that is a link out of the data directory is an
+            // error at start rather than a hole later.
+            if data.resolve(area.dir_name()).is_err() {
+                return Err(io::Error::new(
+                    io::ErrorKind::InvalidInput,
+                    format!("{} leaves the data directory", dir.display()),
+                ));
+            }
         }
-        Ok(DataDir { root })
+        Ok(data)
     }
 
     /// The directory itself (canonical).
@@ -76,19 +87,7 @@ impl DataDir {
     /// Resolves a client's relative path inside the data directory. The
     /// path need not exist; whatever part of it exists is checked.
     pub fn resolve(&self, rel: &str) -> SimResult<PathBuf> {
-        self.resolve_under(&self.root, rel)
-    }
-
-    /// Resolves a single name inside `area`.
-    pub fn named(&self, area: Area, name: &str) -> SimResult<PathBuf> {
-        if Path::new(name).components().count() != 1 {
-            return Err(SimError::Escapes(name.into()));
-        }
-        self.resolve_under(&self.area(area), name)
-    }
-
-    fn resolve_under(&self, base: &Path, rel: &str) -> SimResult<PathBuf> {
-        let mut path = base.to_path_buf();
+        let mut path = self.root.clone();
         for component in Path::new(rel).components() {
             match component {
                 Component::Normal(part) => path.push(part),
@@ -109,6 +108,17 @@ impl DataDir {
             }
         }
         Ok(path)
+    }
+
+    /// Resolves a single name inside `area`.
+    pub fn named(&self, area: Area, name: &str) -> SimResult<PathBuf> {
+        if !matches!(
+            Path::new(name).components().collect::<Vec<_>>()[..],
+            [Component::Normal(_)]
+        ) {
+            return Err(SimError::Escapes(name.into()));
+        }
+        self.resolve(&format!("{}/{name}", area.dir_name()))
     }
 
     /// Reads a client's file, at most `limit` bytes, as UTF-8.
@@ -298,6 +308,15 @@ mod tests {
             data.read_client_file("out/secret", 10),
             Err(SimError::Escapes(_))
         ));
+    }
+
+    #[test]
+    fn a_subdirectory_linked_out_of_the_data_dir_stops_open() {
+        let outside = tempfile::tempdir().unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        symlink(outside.path(), dir.path().join("maps")).unwrap();
+        let e = DataDir::open(dir.path()).unwrap_err();
+        assert!(e.to_string().ends_with("maps leaves the data directory"), "{e}");
     }
 
     #[test]

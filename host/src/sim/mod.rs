@@ -89,6 +89,9 @@ pub struct Simulator {
     bag: Option<Bag>,
     map_path: Option<String>,
     captures: u64,
+    /// Makes the next command panic, to prove panics become ret -100.
+    #[cfg(test)]
+    inject_panic: bool,
 }
 
 impl Simulator {
@@ -126,6 +129,8 @@ impl Simulator {
             bag: None,
             map_path: None,
             captures: 0,
+            #[cfg(test)]
+            inject_panic: false,
         })
     }
 
@@ -235,6 +240,10 @@ impl Simulator {
     fn run(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> SimResult {
         use CommandId as C;
         self.commands += 1;
+        #[cfg(test)]
+        if std::mem::take(&mut self.inject_panic) {
+            panic!("injected fault");
+        }
         match (cmd.id(), cmd.args()) {
             // State & telemetry.
             (C::State, _) => self.write_state(ctx, out),
@@ -826,4 +835,46 @@ fn unix_ms() -> i64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lluav_core::{Auth, Message, Outcome, Server, Session};
+
+    #[test]
+    fn a_panic_in_a_command_is_answered_as_unhandled_and_the_vehicle_carries_on() {
+        let dir = tempfile::tempdir().unwrap();
+        let sim = Simulator::open(SimConfig {
+            data_dir: dir.path().to_path_buf(),
+            speed: 1.0,
+            log: RecentLog::new(8),
+        })
+        .unwrap();
+        let mut server = Server::new(sim, || 7, Auth::new(None).unwrap());
+        let mut session = Session::new();
+        let mut out = [0u8; 4096];
+        server.backend_mut().inject_panic = true;
+        assert_eq!(
+            server.handle(&mut session, Message::Text(b"state"), &mut out),
+            Outcome::Reply(r#"{"ret":-100,"cmd":2,"ts":7,"msg":"Unhandled exception"}"#)
+        );
+        let Outcome::Reply(r) = server.handle(&mut session, Message::Text(b"ver"), &mut out) else {
+            panic!("no reply");
+        };
+        assert!(r.starts_with(r#"{"ret":0,"cmd":5,"#), "{r}");
+    }
+
+    #[test]
+    fn a_speed_that_is_not_a_positive_number_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        for speed in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let cfg = SimConfig {
+                data_dir: dir.path().to_path_buf(),
+                speed,
+                log: RecentLog::new(8),
+            };
+            assert!(Simulator::open(cfg).is_err(), "{speed}");
+        }
+    }
 }
