@@ -12,6 +12,8 @@ use std::f64::consts::PI;
 
 /// Longest simulated step, s.
 pub const MAX_STEP_S: f64 = 0.05;
+/// Most steps one call to [`Flight::advance`] takes.
+pub const MAX_STEPS: f64 = 100_000.0;
 /// Time a landed vehicle stays armed before it disarms, s.
 pub const DISARM_DELAY_S: f64 = 1.0;
 /// Landing descends at least fast enough to touch down within this, s.
@@ -397,8 +399,12 @@ impl Flight {
     /// Advances the simulation by `dt` simulated seconds.
     pub fn advance(&mut self, dt: f64, lim: &Limits) {
         let mut left = dt.max(0.0);
+        // A tick after a long stall must not hold the vehicle's lock for
+        // seconds: past MAX_STEPS the steps grow instead. Motion stays
+        // exact (steps never overshoot); only timing resolution coarsens.
+        let max_step = MAX_STEP_S.max(left / MAX_STEPS);
         while left > 0.0 {
-            let step = left.min(MAX_STEP_S);
+            let step = left.min(max_step);
             self.step(step, lim);
             left -= step;
         }
@@ -621,6 +627,24 @@ mod tests {
             ]
         );
         assert!((f.yaw() - 0.5).abs() < 0.05);
+    }
+
+    #[test]
+    fn a_huge_tick_still_ends_where_small_ticks_do() {
+        let mut f = Flight::default();
+        f.takeoff(2.0);
+        f.advance(3.0, &limits());
+        f.set_setpoint(Ned::new(100.0, 0.0, -2.0), 0.0);
+        // No drain: an empty battery would land it.
+        f.advance(
+            1e7,
+            &Limits {
+                drain: 0.0,
+                ..limits()
+            },
+        );
+        assert_eq!(f.mode(), Mode::Hover);
+        assert!((f.pos().x - 100.0).abs() < 1e-9);
     }
 
     #[test]

@@ -70,6 +70,7 @@ impl Simulator {
                 .object("home", |o| write_ned(o, f.home()))
                 .u64("waypoints_left", f.legs_left() as u64)
                 .bool("plan_lock", self.missions.plan_locked)
+                .bool("obs_mission", self.missions.obs_live)
                 .bool("tunnelfly", self.dev.tunnelfly)
                 .bool("map_locate", self.dev.map_locate)
                 .bool("recording_bag", self.bag.is_some())
