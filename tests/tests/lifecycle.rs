@@ -10,12 +10,9 @@ use serde_json::Value;
 
 const PASSWORD: &str = "s3cret";
 
-/// The value `get_param` reports for `name`.
+/// The value `get_param` reports for `name` (`{"param":{name:value},...}`).
 fn param_value(r: &Value, name: &str) -> Value {
-    match r.get(name) {
-        Some(v) => v.clone(),
-        None => r["value"].clone(),
-    }
+    r["param"][name].clone()
 }
 
 #[test]
