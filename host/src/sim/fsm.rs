@@ -92,6 +92,11 @@ impl Ned {
         Ned::new(self.x - o.x, self.y - o.y, self.z - o.z)
     }
 
+    /// Height above the NED origin's level (`-z`, never `-0.0`).
+    pub fn up(self) -> f64 {
+        0.0 - self.z
+    }
+
     fn norm(self) -> f64 {
         (self.x * self.x + self.y * self.y + self.z * self.z).sqrt()
     }
@@ -300,7 +305,10 @@ impl Flight {
     /// Disarms at once; a vehicle in the air drops to the ground.
     pub fn disarm(&mut self) {
         if self.mode.airborne() {
-            tracing::warn!(altitude = -self.pos.z, "forced disarm in flight: vehicle dropped");
+            tracing::warn!(
+                altitude = format!("{:.2}", self.pos.up()),
+                "forced disarm in flight: vehicle dropped"
+            );
         }
         self.drop_route();
         if self.mode != Mode::Sleep {
@@ -436,7 +444,10 @@ impl Flight {
             Mode::Takeoff => {
                 self.move_towards(dt, lim, lim.climb);
                 if (self.pos.z - self.sp.z).abs() < 0.05 {
-                    tracing::info!(altitude = -self.pos.z, "takeoff complete: hovering");
+                    tracing::info!(
+                        altitude = format!("{:.2}", self.pos.up()),
+                        "takeoff complete: hovering"
+                    );
                     self.mode = Mode::Hover;
                 }
             }

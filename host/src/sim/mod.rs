@@ -608,7 +608,7 @@ impl Simulator {
                 self.dev.lidar.write(out);
             }
             (C::Lidarwarn, _) => {
-                let altitude = -self.flight.pos().z;
+                let altitude = self.flight.pos().up();
                 self.dev
                     .lidar
                     .write_warnings(out, altitude, self.flight.mode().airborne());

@@ -61,7 +61,7 @@ impl Simulator {
                 .object("position", |o| write_ned(o, f.pos()))
                 .object("velocity", |o| write_ned(o, f.vel()))
                 .f64("yaw", f.yaw())
-                .f64("altitude", -f.pos().z)
+                .f64("altitude", f.pos().up())
                 .f64("battery", round1(f.battery()))
                 .object("setpoint", |o| {
                     write_ned(o, sp);
@@ -74,7 +74,7 @@ impl Simulator {
                 .bool("tunnelfly", self.dev.tunnelfly)
                 .bool("map_locate", self.dev.map_locate)
                 .bool("recording_bag", self.bag.is_some())
-                .f64("sim_time_s", self.sim_s)
+                .f64("sim_time_s", (self.sim_s * 1000.0).round() / 1000.0)
                 .f64("sim_speed", self.speed);
             match &self.missions.taskname {
                 Some(t) => s.str("taskname", t),
@@ -138,7 +138,7 @@ impl Simulator {
         out.u64("kfs", self.keyframes());
         // ENU: x east, y north, z up.
         out.object("uav_pos_enu", |o| {
-            o.f64("x", p.y).f64("y", p.x).f64("z", -p.z);
+            o.f64("x", p.y).f64("y", p.x).f64("z", p.up());
         });
         out.object("extra", |o| {
             o.str("fsm", self.flight.mode().name())
