@@ -6,8 +6,6 @@
 //! truncated or invalid object. Overflow is sticky: once a write does not
 //! fit, every later write is a no-op and the response is replaced.
 
-use core::fmt::{self, Write};
-
 use serde::Serialize;
 
 use crate::error::Ret;
@@ -61,45 +59,50 @@ impl Sink<'_> {
     fn escaped(&mut self, s: &str) {
         let bytes = s.as_bytes();
         let mut start = 0;
-        for (i, &b) in bytes.iter().enumerate() {
-            let esc: &[u8] = match b {
-                b'"' => b"\\\"",
-                b'\\' => b"\\\\",
-                b'\n' => b"\\n",
-                b'\r' => b"\\r",
-                b'\t' => b"\\t",
-                0x00..=0x1f => b"",
-                _ => continue,
-            };
-            self.bytes(bytes.get(start..i).unwrap_or_default());
-            if esc.is_empty() {
-                const HEX: &[u8; 16] = b"0123456789abcdef";
-                let u = [
-                    b'\\',
-                    b'u',
-                    b'0',
-                    b'0',
-                    HEX[usize::from(b >> 4)],
-                    HEX[usize::from(b & 0xf)],
-                ];
-                self.bytes(&u);
-            } else {
-                self.bytes(esc);
+        // Escapes are rare: copy the runs between them in one go.
+        while let Some(offset) = bytes
+            .get(start..)
+            .and_then(|rest| rest.iter().position(|&b| needs_escape(b)))
+        {
+            let at = start + offset;
+            self.bytes(bytes.get(start..at).unwrap_or_default());
+            let b = bytes.get(at).copied().unwrap_or_default();
+            match b {
+                b'"' => self.bytes(b"\\\""),
+                b'\\' => self.bytes(b"\\\\"),
+                b'\n' => self.bytes(b"\\n"),
+                b'\r' => self.bytes(b"\\r"),
+                b'\t' => self.bytes(b"\\t"),
+                _ => {
+                    const HEX: &[u8; 16] = b"0123456789abcdef";
+                    let hex = |nibble: u8| HEX.get(usize::from(nibble & 0xf)).copied().unwrap_or(b'0');
+                    self.bytes(&[b'\\', b'u', b'0', b'0', hex(b >> 4), hex(b)]);
+                }
             }
-            start = i + 1;
+            start = at + 1;
         }
         self.bytes(bytes.get(start..).unwrap_or_default());
     }
 
     fn uint(&mut self, mut v: u64) {
+        // Two digits per division, from a table, as integer formatters do.
+        const PAIRS: &[u8; 200] = b"0001020304050607080910111213141516171819\
+2021222324252627282930313233343536373839404142434445464748495051525354555657585960616263646566676869\
+707172737475767778798081828384858687888990919293949596979899";
         let mut digits = [0u8; 20];
         let mut i = digits.len();
-        loop {
+        while v >= 10 {
+            let pair = usize::try_from(v % 100).unwrap_or_default() * 2;
+            v /= 100;
+            i -= 2;
+            if let (Some(dst), Some(src)) = (digits.get_mut(i..i + 2), PAIRS.get(pair..pair + 2)) {
+                dst.copy_from_slice(src);
+            }
+        }
+        if v > 0 || i == digits.len() {
             i -= 1;
-            digits[i] = b'0' + (v % 10) as u8;
-            v /= 10;
-            if v == 0 {
-                break;
+            if let Some(d) = digits.get_mut(i) {
+                *d = b'0' + (v as u8);
             }
         }
         self.bytes(digits.get(i..).unwrap_or_default());
@@ -116,27 +119,21 @@ impl Sink<'_> {
         self.bytes(if v { b"true" } else { b"false" });
     }
 
-    /// Plain notation where it stays short, exponent notation elsewhere;
-    /// JSON has no NaN or infinity, so those become `null`.
+    /// Shortest round-trip text (ryu: `1.5`, `-10.0`, `1e30`); JSON has no
+    /// NaN or infinity, so those become `null`.
     fn f64(&mut self, v: f64) {
-        let a = v.abs();
-        if !v.is_finite() {
-            self.bytes(b"null");
-        } else if a == 0.0 || (1e-6..1e16).contains(&a) {
-            let _ = write!(self, "{v}");
+        if v.is_finite() {
+            self.bytes(ryu::Buffer::new().format_finite(v).as_bytes());
         } else {
-            let _ = write!(self, "{v:e}");
+            self.bytes(b"null");
         }
     }
 
     fn f32(&mut self, v: f32) {
-        let a = v.abs();
-        if !v.is_finite() {
-            self.bytes(b"null");
-        } else if a == 0.0 || (1e-6..1e16).contains(&a) {
-            let _ = write!(self, "{v}");
+        if v.is_finite() {
+            self.bytes(ryu::Buffer::new().format_finite(v).as_bytes());
         } else {
-            let _ = write!(self, "{v:e}");
+            self.bytes(b"null");
         }
     }
 
@@ -167,11 +164,9 @@ impl Sink<'_> {
     }
 }
 
-impl Write for Sink<'_> {
-    fn write_str(&mut self, s: &str) -> fmt::Result {
-        self.bytes(s.as_bytes());
-        Ok(())
-    }
+/// Bytes that JSON strings must escape.
+fn needs_escape(b: u8) -> bool {
+    b < 0x20 || b == b'"' || b == b'\\'
 }
 
 /// Writes the members of a JSON object: the command-specific fields of a

@@ -250,11 +250,20 @@ const _: () = {
     }
 };
 
-/// Row indices of [`TABLE`] sorted by name, for binary search.
+/// Row indices of [`TABLE`] sorted by (length, bytes) of the name, for
+/// binary search: most probes are settled by the length alone.
 static BY_NAME: [u8; TABLE.len()] = sorted_by_name();
+
+/// The order of [`BY_NAME`].
+fn name_order(a: &str, b: &str) -> core::cmp::Ordering {
+    a.len().cmp(&b.len()).then_with(|| a.as_bytes().cmp(b.as_bytes()))
+}
 
 const fn name_less(a: &str, b: &str) -> bool {
     let (a, b) = (a.as_bytes(), b.as_bytes());
+    if a.len() != b.len() {
+        return a.len() < b.len();
+    }
     let mut i = 0;
     while i < a.len() && i < b.len() {
         if a[i] != b[i] {
@@ -302,7 +311,7 @@ pub fn lookup(name: &str) -> Option<&'static Spec> {
         .binary_search_by(|&row| {
             TABLE
                 .get(usize::from(row))
-                .map_or(core::cmp::Ordering::Less, |spec| spec.name.cmp(name))
+                .map_or(core::cmp::Ordering::Less, |spec| name_order(spec.name, name))
         })
         .ok()?;
     let row = BY_NAME.get(index)?;

@@ -17,7 +17,7 @@ fn a_success_is_one_object_with_ret_cmd_ts_first() {
     let reply = s.handle(&mut sess, Message::Text(b"set_sp_ned 1.0:2.0:-3.0:0.5"), &mut out);
     assert_eq!(
         reply,
-        Outcome::Reply(r#"{"ret":0,"cmd":23,"ts":1714233600000,"x":1,"y":2,"z":-3,"yaw":0.5}"#)
+        Outcome::Reply(r#"{"ret":0,"cmd":23,"ts":1714233600000,"x":1.0,"y":2.0,"z":-3.0,"yaw":0.5}"#)
     );
 }
 
