@@ -26,7 +26,7 @@ use tokio::sync::{Semaphore, watch};
 use tokio::task::JoinSet;
 use tokio::time::timeout;
 use tokio_tungstenite::WebSocketStream;
-use tokio_tungstenite::tungstenite::handshake::server::{ErrorResponse, Request, Response};
+use tokio_tungstenite::tungstenite::handshake::server::{Callback, ErrorResponse, Request, Response};
 use tokio_tungstenite::tungstenite::http::StatusCode;
 use tokio_tungstenite::tungstenite::protocol::frame::CloseFrame;
 use tokio_tungstenite::tungstenite::protocol::{WebSocketConfig, frame::coding::CloseCode as WsCloseCode};
@@ -106,6 +106,11 @@ impl Default for Limits {
 /// enough for any honest pipeline, bounded so that a client streaming
 /// requests cannot hold the shutdown open.
 const MAX_FRAMES_AFTER_SHUTDOWN: usize = 256;
+
+/// How long a close waits for the peer's close frame. Short, because a
+/// peer that stopped reading must not hold up a shutdown for long; the
+/// socket is closed either way.
+const CLOSE_HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(3);
 
 /// Refusals (HTTP 503) in progress at once; beyond it a connection over
 /// the limit is dropped without an answer.
@@ -187,19 +192,30 @@ pub async fn serve<H: Handler>(
 /// Answers a connection over the limit with HTTP 503 instead of a hang.
 async fn refuse(stream: TcpStream, peer: SocketAddr, limits: Limits) {
     warn!(%peer, max = limits.max_connections, "connection limit reached; refusing");
-    let reject = |_: &Request, _: Response| -> Result<Response, ErrorResponse> {
-        let mut response = ErrorResponse::new(Some(format!(
-            "lluavd: connection limit ({}) reached, try again later\n",
-            limits.max_connections
-        )));
-        *response.status_mut() = StatusCode::SERVICE_UNAVAILABLE;
-        Err(response)
+    let refusal = Refusal {
+        max_connections: limits.max_connections,
     };
     let _ = timeout(
         limits.io_timeout,
-        tokio_tungstenite::accept_hdr_async(stream, reject),
+        tokio_tungstenite::accept_hdr_async(stream, refusal),
     )
     .await;
+}
+
+/// The upgrade callback that turns every request down with 503.
+struct Refusal {
+    max_connections: usize,
+}
+
+impl Callback for Refusal {
+    fn on_request(self, _: &Request, _: Response) -> Result<Response, ErrorResponse> {
+        let mut response = ErrorResponse::new(Some(format!(
+            "lluavd: connection limit ({}) reached, try again later\n",
+            self.max_connections
+        )));
+        *response.status_mut() = StatusCode::SERVICE_UNAVAILABLE;
+        Err(response)
+    }
 }
 
 /// What the read loop saw next.
@@ -286,7 +302,7 @@ async fn connection<H: Handler>(
             Flow::Continue => {}
             Flow::Done => break,
             Flow::Close(code, reason) => {
-                close(&mut ws, code, reason, limits).await;
+                close(&mut ws, code, reason).await;
                 break;
             }
         }
@@ -358,7 +374,7 @@ async fn on_frame<H: Handler>(
 
 /// Sends a close frame and waits (bounded) for the peer's, so the close
 /// handshake completes; anything the peer sends meanwhile is discarded.
-async fn close(ws: &mut WebSocketStream<TcpStream>, code: WsCloseCode, reason: &'static str, limits: Limits) {
+async fn close(ws: &mut WebSocketStream<TcpStream>, code: WsCloseCode, reason: &'static str) {
     let frame = CloseFrame {
         code,
         reason: reason.into(),
@@ -369,5 +385,5 @@ async fn close(ws: &mut WebSocketStream<TcpStream>, code: WsCloseCode, reason: &
         }
         while let Some(Ok(_)) = ws.next().await {}
     };
-    let _ = timeout(limits.io_timeout, handshake).await;
+    let _ = timeout(CLOSE_HANDSHAKE_TIMEOUT, handshake).await;
 }

@@ -332,11 +332,16 @@ impl Conn {
         self.response().await
     }
 
-    /// Waits for the server's close frame and returns its code.
+    /// Waits for the server's close frame, completes the close handshake
+    /// and returns the code.
     pub async fn close_code(&mut self) -> Option<u16> {
         loop {
             match self.recv().await {
-                Received::Close(code) => return code,
+                Received::Close(code) => {
+                    // Reading on sends tungstenite's queued close reply.
+                    while let Ok(Some(Ok(_))) = tokio::time::timeout(WAIT, self.ws.next()).await {}
+                    return code;
+                }
                 Received::Text(t) => panic!("expected a close, got a response: {t}"),
                 Received::Pong(_) => continue,
                 Received::Ended => panic!("the connection ended without a close frame"),

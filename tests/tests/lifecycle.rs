@@ -78,6 +78,7 @@ async fn saved_parameters_and_the_password_survive_a_restart() {
     assert_eq!(r["ret"], 0, "{r}");
     let r = c.request("passwd n3wpass").await;
     assert_eq!(r["ret"], 0, "{r}");
+    c.close().await;
     assert!(daemon.terminate().success());
 
     // No --password this time: the one set by passwd is in force.
