@@ -126,10 +126,27 @@ impl Outbox<'_> {
         kind: WebSocketSendMessageType,
         payload: &[u8],
     ) -> Result<(), Error<T::Error>> {
-        let len = self
-            .ws
-            .write(kind, true, payload, self.transmit)
-            .map_err(|_| Error::Framing)?;
+        let len = if payload.len() == 0xffff {
+            // embedded-websocket 0.9.5 switches to the 64-bit length form
+            // at 65535 instead of above it; RFC 6455 requires the minimal
+            // (16-bit) form, and clients fail the connection otherwise
+            // (Autobahn case 1.1.6).
+            let opcode = match kind {
+                WebSocketSendMessageType::Text => 0x1,
+                WebSocketSendMessageType::Binary => 0x2,
+                WebSocketSendMessageType::CloseReply => 0x8,
+                WebSocketSendMessageType::Ping => 0x9,
+                WebSocketSendMessageType::Pong => 0xa,
+            };
+            let frame = self.transmit.get_mut(..4 + payload.len()).ok_or(Error::Framing)?;
+            frame[..4].copy_from_slice(&[0x80 | opcode, 126, 0xff, 0xff]);
+            frame[4..].copy_from_slice(payload);
+            frame.len()
+        } else {
+            self.ws
+                .write(kind, true, payload, self.transmit)
+                .map_err(|_| Error::Framing)?
+        };
         self.flush(io, len).await
     }
 

@@ -29,6 +29,7 @@
 
 mod log;
 
+pub mod board;
 pub mod connection;
 pub mod frame;
 pub mod handshake;

@@ -39,19 +39,25 @@ impl Write for Pieces {
     }
 }
 
-/// A frame the adapter sent: opcode and payload.
-type Sent = (u8, Vec<u8>);
+/// What the adapter did with one input.
+struct Run {
+    ended: Result<u16, Error<ErrorKind>>,
+    /// The frames it sent after the `101`: opcode and payload.
+    frames: Vec<(u8, Vec<u8>)>,
+    /// The bytes it sent after the `101`.
+    wire: Vec<u8>,
+}
 
-/// Runs the echo service over `input` cut into `piece`-byte reads; returns
-/// how the connection ended and the frames it sent after the `101`.
-fn echo(input: &[u8], piece: usize) -> (Result<u16, Error<ErrorKind>>, Vec<Sent>) {
+/// Runs the echo service over `input` cut into `piece`-byte reads.
+fn run(input: &[u8], piece: usize) -> Run {
     let mut io = Pieces {
         input: input.to_vec(),
         at: 0,
         piece,
         output: Vec::new(),
     };
-    let (mut raw, mut message, mut response, mut transmit) = ([0; 512], [0; 1024], [0; 1024], [0; 1024]);
+    let (mut raw, mut message, mut response, mut transmit) =
+        (vec![0; 512], vec![0; 70_000], vec![0; 70_000], vec![0; 70_000]);
     let buffers = Buffers {
         raw: &mut raw,
         message: &mut message,
@@ -68,13 +74,14 @@ fn echo(input: &[u8], piece: usize) -> (Result<u16, Error<ErrorKind>>, Vec<Sent>
         .windows(4)
         .position(|w| w == b"\r\n\r\n")
         .map_or(0, |i| i + 4);
-    let mut rest = &io.output[head_end..];
+    let wire = io.output[head_end..].to_vec();
+    let mut rest = &wire[..];
     let mut frames = Vec::new();
     while let Some((frame, used)) = parse_server_frame(rest) {
         frames.push((frame.opcode, frame.payload));
         rest = &rest[used..];
     }
-    (ended, frames)
+    Run { ended, frames, wire }
 }
 
 fn session(frames: &[Vec<u8>]) -> Vec<u8> {
@@ -99,7 +106,7 @@ fn fragmented_message_is_reassembled_however_the_bytes_are_cut() {
         masked(true, op::CLOSE, &1000u16.to_be_bytes()),
     ]);
     for piece in [1, 2, 3, 7, 64, 4096] {
-        let (ended, frames) = echo(&input, piece);
+        let Run { ended, frames, .. } = run(&input, piece);
         assert_eq!(ended, Ok(1000), "piece {piece}");
         let expected = vec![
             (op::PONG, b"!".to_vec()),
@@ -117,7 +124,7 @@ fn fragmented_message_is_reassembled_however_the_bytes_are_cut() {
 fn peer_vanishing_mid_frame_ends_the_connection_without_a_reply() {
     let mut input = session(&[masked(true, op::TEXT, b"state")]);
     input.truncate(input.len() - 2);
-    let (ended, frames) = echo(&input, 5);
+    let Run { ended, frames, .. } = run(&input, 5);
     assert_eq!((ended, frames.len()), (Err(Error::PeerClosed), 0));
 }
 
@@ -125,7 +132,7 @@ fn peer_vanishing_mid_frame_ends_the_connection_without_a_reply() {
 fn reserved_bits_fail_the_connection_with_1002() {
     let mut frame = masked(true, op::TEXT, b"x");
     frame[0] |= 0x40;
-    let (ended, frames) = echo(&session(&[frame]), 64);
+    let Run { ended, frames, .. } = run(&session(&[frame]), 64);
     assert_eq!(ended, Ok(1002));
     assert_eq!(frames, vec![(op::CLOSE, 1002u16.to_be_bytes().to_vec())]);
 }
@@ -133,13 +140,13 @@ fn reserved_bits_fail_the_connection_with_1002() {
 #[test]
 fn text_frame_inside_a_fragmented_message_fails_with_1002() {
     let input = session(&[masked(false, op::TEXT, b"a"), masked(true, op::TEXT, b"b")]);
-    assert_eq!(echo(&input, 64).0, Ok(1002));
+    assert_eq!(run(&input, 64).ended, Ok(1002));
 }
 
 #[test]
 fn close_reason_that_is_not_utf8_is_answered_with_1007() {
     let input = session(&[masked(true, op::CLOSE, b"\x03\xe8\xff")]);
-    assert_eq!(echo(&input, 64).0, Ok(1007));
+    assert_eq!(run(&input, 64).ended, Ok(1007));
 }
 
 #[test]
@@ -159,4 +166,13 @@ fn too_small_buffers_are_an_error_not_a_panic() {
     };
     let mut conn = Connection::new(buffers, None);
     assert_eq!(block_on(conn.accept(&mut io)), Err(Error::Buffers));
+}
+
+#[test]
+fn a_65535_byte_echo_uses_the_minimal_16_bit_length() {
+    let text = "a".repeat(0xffff);
+    let r = run(&session(&[masked(true, op::TEXT, text.as_bytes())]), 4096);
+    assert_eq!(r.ended, Err(Error::PeerClosed));
+    assert_eq!(r.wire[..4], [0x81, 126, 0xff, 0xff]);
+    assert_eq!(r.frames, vec![(op::TEXT, text.into_bytes())]);
 }

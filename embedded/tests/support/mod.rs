@@ -3,11 +3,11 @@
 //! vehicle backend.
 #![allow(dead_code)]
 
+mod executor;
+
+pub use executor::block_on;
+
 use std::future::Future;
-use std::pin::pin;
-use std::sync::Arc;
-use std::task::{Context, Poll, Wake, Waker};
-use std::thread::{self, Thread};
 
 use embassy_futures::join::join;
 use embassy_futures::select::{Either, select};
@@ -33,28 +33,6 @@ pub const FRAME: usize = 4096;
 /// Concurrent sessions of the adapter under test.
 pub const SESSIONS: usize = 4;
 pub type TestSlot = Slot<4096, 1024, FRAME, 2048>;
-
-struct Unpark(Thread);
-
-impl Wake for Unpark {
-    fn wake(self: Arc<Self>) {
-        self.0.unpark();
-    }
-}
-
-/// Runs a future to completion on this thread, sleeping while it is pending
-/// (embassy-time's std driver and the link wake it).
-pub fn block_on<F: Future>(future: F) -> F::Output {
-    let waker = Waker::from(Arc::new(Unpark(thread::current())));
-    let mut cx = Context::from_waker(&waker);
-    let mut future = pin!(future);
-    loop {
-        if let Poll::Ready(out) = future.as_mut().poll(&mut cx) {
-            return out;
-        }
-        thread::park();
-    }
-}
 
 fn leak<T>(value: T) -> &'static mut T {
     Box::leak(Box::new(value))
