@@ -19,7 +19,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use futures_util::{FutureExt, SinkExt, StreamExt};
+use futures_util::{SinkExt, StreamExt};
 use lluav_core::{CloseCode, Message, Outcome};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
@@ -106,6 +106,10 @@ impl Default for Limits {
 /// enough for any honest pipeline, bounded so that a client streaming
 /// requests cannot hold the shutdown open.
 const MAX_FRAMES_AFTER_SHUTDOWN: usize = 256;
+
+/// At shutdown, how long a connection waits for the next frame that may
+/// already be on its way before it closes.
+const IN_FLIGHT_WAIT: Duration = Duration::from_millis(100);
 
 /// How long a close waits for the peer's close frame. Short, because a
 /// peer that stopped reading must not hold up a shutdown for long; the
@@ -282,9 +286,10 @@ async fn connection<H: Handler>(
             Event::Shutdown => {
                 let mut verdict = Flow::Close(WsCloseCode::Away, "lluavd is shutting down");
                 // Answer what had already arrived; the sender is still
-                // waiting for those replies.
+                // waiting for those replies. The short wait lets the reactor
+                // report bytes already in the socket buffer.
                 for _ in 0..MAX_FRAMES_AFTER_SHUTDOWN {
-                    let Some(Some(frame)) = ws.next().now_or_never() else {
+                    let Ok(Some(frame)) = timeout(IN_FLIGHT_WAIT, ws.next()).await else {
                         break;
                     };
                     match on_frame(&mut ws, handler, &mut session, &mut out, frame, limits).await {

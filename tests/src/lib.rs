@@ -31,15 +31,19 @@ pub const WAIT: Duration = Duration::from_secs(60);
 /// as the tests (`LLUAVD` overrides it with a ready-made binary).
 pub fn lluavd_bin() -> &'static Path {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
-    BIN.get_or_init(|| {
-        if let Some(path) = std::env::var_os("LLUAVD") {
-            return PathBuf::from(path);
-        }
-        build_lluavd()
-    })
+    BIN.get_or_init(|| std::env::var_os("LLUAVD").map_or_else(|| build_host_bin("lluavd"), PathBuf::from))
 }
 
-fn build_lluavd() -> PathBuf {
+/// The `lluav` client binary, built like [`lluavd_bin`] (`LLUAV` overrides).
+pub fn lluav_bin() -> &'static Path {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    BIN.get_or_init(|| std::env::var_os("LLUAV").map_or_else(|| build_host_bin("lluav"), PathBuf::from))
+}
+
+/// Builds one of lluav-host's binaries with cargo (a test cannot name
+/// another package's binary through `CARGO_BIN_EXE_*`) and returns the path
+/// cargo reports.
+fn build_host_bin(name: &str) -> PathBuf {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml");
     let mut build = Command::new(cargo);
@@ -50,7 +54,7 @@ fn build_lluavd() -> PathBuf {
             "-p",
             "lluav-host",
             "--bin",
-            "lluavd",
+            name,
             "--message-format=json",
         ])
         .arg("--manifest-path")
@@ -60,13 +64,13 @@ fn build_lluavd() -> PathBuf {
         build.arg("--release");
     }
     let output = build.output().expect("cargo runs");
-    assert!(output.status.success(), "cargo build of lluavd failed");
+    assert!(output.status.success(), "cargo build of {name} failed");
     String::from_utf8_lossy(&output.stdout)
         .lines()
         .filter_map(|line| serde_json::from_str::<Value>(line).ok())
-        .filter(|m| m["reason"] == "compiler-artifact" && m["target"]["name"] == "lluavd")
+        .filter(|m| m["reason"] == "compiler-artifact" && m["target"]["name"] == name)
         .find_map(|m| m["executable"].as_str().map(PathBuf::from))
-        .expect("cargo reported the lluavd executable")
+        .unwrap_or_else(|| panic!("cargo reported no executable for {name}"))
 }
 
 /// How to start a daemon.

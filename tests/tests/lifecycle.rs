@@ -180,3 +180,22 @@ async fn sigterm_under_load_loses_no_acknowledged_save() {
         "the last acknowledged save ({acked}) or a later one survives, found {kept} ({r})"
     );
 }
+
+#[tokio::test]
+async fn sigterm_answers_every_frame_already_received() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    for _ in 0..100 {
+        c.send("state").await;
+    }
+    daemon.signal("TERM");
+    for i in 0..100 {
+        match c.recv().await {
+            Received::Text(t) => assert_eq!(parse_response(&t)["cmd"], 2, "reply {i}: {t}"),
+            other => panic!("reply {i} of 100 is missing: got {other:?}"),
+        }
+    }
+    assert_eq!(c.close_code().await, Some(1001));
+    assert!(daemon.wait().success());
+}
