@@ -307,6 +307,12 @@ async fn connection<H: Handler>(
             Flow::Continue => {}
             Flow::Done => break,
             Flow::Close(code, reason) => {
+                // Closes other than normal ones say something about a client
+                // (a broken one, or a password guesser): worth a log line.
+                match code {
+                    WsCloseCode::Normal | WsCloseCode::Away => debug!(%peer, %code, "closing"),
+                    _ => info!(%peer, %code, "closing"),
+                }
                 close(&mut ws, code, reason).await;
                 break;
             }
