@@ -201,3 +201,20 @@ async fn every_command_of_the_table_gets_exactly_one_valid_response() {
     assert_eq!(r["cmd"], u8::from(CommandId::Ver), "{r}");
     c.close().await;
 }
+
+#[tokio::test]
+async fn showmsg_shows_the_daemons_own_log_lines() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    let r = c.request("showmsg 50").await;
+    assert_eq!(r["ret"], 0, "{r}");
+    let lines: Vec<&str> = r["msgs"]
+        .as_array()
+        .map(|a| a.iter().filter_map(Value::as_str).collect())
+        .unwrap_or_default();
+    assert!(
+        lines.iter().any(|l| l.contains("lluavd ready")),
+        "the start-up log line reaches showmsg: {r}"
+    );
+}
