@@ -8,6 +8,8 @@
 //! - [`client`]: the typed async client `lluav` is built on;
 //! - [`sim`] and [`recent_log`]: the simulated vehicle and the log it shows.
 
+#![warn(missing_docs)]
+
 pub mod client;
 pub mod config;
 pub mod daemon;
