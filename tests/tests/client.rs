@@ -188,4 +188,10 @@ fn lluav_repl_runs_commands_and_local_help() {
         "{}",
         text(&out.stderr)
     );
+    let history =
+        std::fs::read_to_string(dir.path().join(".local/state/lluav/repl-history")).expect("history kept");
+    assert!(
+        history.contains("help set_sp_ned") && history.contains("state"),
+        "{history}"
+    );
 }

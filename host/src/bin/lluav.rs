@@ -18,7 +18,7 @@ use rustyline::highlight::Highlighter;
 use rustyline::hint::Hinter;
 use rustyline::history::DefaultHistory;
 use rustyline::validate::Validator;
-use rustyline::{Context, Editor, Helper};
+use rustyline::{CompletionType, Config, Context, Editor, Helper};
 use tokio::runtime::Runtime;
 
 /// The LLUAV command-line client: one command, or an interactive session.
@@ -109,7 +109,10 @@ fn print_response(response: &Response) {
 }
 
 fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
-    let mut editor: Editor<Commands, DefaultHistory> = match Editor::new() {
+    // Bash-like: Tab completes the common prefix, a second Tab lists the
+    // candidates with their usage lines.
+    let config = Config::builder().completion_type(CompletionType::List).build();
+    let mut editor: Editor<Commands, DefaultHistory> = match Editor::with_config(config) {
         Ok(e) => e,
         Err(e) => {
             eprintln!("lluav: cannot start the line editor: {e}");
@@ -119,6 +122,9 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
     editor.set_helper(Some(Commands));
     let history = history_file();
     if let Some(path) = &history {
+        if let Some(dir) = path.parent() {
+            let _ = std::fs::create_dir_all(dir);
+        }
         // No history yet is the normal first run.
         let _ = editor.load_history(path);
     }
@@ -147,8 +153,12 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
         if line.is_empty() {
             continue;
         }
-        // Duplicates and other refusals of the history are not worth a word.
+        // Duplicates and other refusals of the history are not worth a word;
+        // saving at once keeps the history of a session that gets killed.
         let _ = editor.add_history_entry(line);
+        if let Some(path) = &history {
+            let _ = editor.save_history(path);
+        }
         match line.split_once(' ').map_or((line, ""), |(a, b)| (a, b.trim())) {
             ("quit" | "exit", _) => break,
             ("help", "") => print_table(),
@@ -173,9 +183,6 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
         }
     }
     if let Some(path) = &history {
-        if let Some(dir) = path.parent() {
-            let _ = std::fs::create_dir_all(dir);
-        }
         if let Err(e) = editor.save_history(path) {
             eprintln!("lluav: history not saved to {}: {e}", path.display());
         }
