@@ -218,3 +218,19 @@ async fn showmsg_shows_the_daemons_own_log_lines() {
         "the start-up log line reaches showmsg: {r}"
     );
 }
+
+#[tokio::test]
+async fn a_new_password_applies_to_every_session() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let mut a = Conn::login(&daemon.url, PASSWORD).await;
+    let mut b = Conn::connect(&daemon.url).await;
+    let r = a.request("passwd changed1").await;
+    assert_eq!(r["ret"], 0, "{r}");
+    let r = b.request(&format!("login {PASSWORD}")).await;
+    assert_eq!(r["msg"], "Wrong password!", "the old password is gone: {r}");
+    let r = b.request("login changed1").await;
+    assert_eq!(r["ret"], 0, "{r}");
+    let r = a.request("state").await;
+    assert_eq!(r["ret"], 0, "the session that changed it stays logged in: {r}");
+}
