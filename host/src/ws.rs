@@ -19,7 +19,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use futures_util::{SinkExt, StreamExt};
+use futures_util::{FutureExt, SinkExt, StreamExt};
 use lluav_core::{CloseCode, Message, Outcome};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
@@ -106,6 +106,15 @@ impl Default for Limits {
 /// enough for any honest pipeline, bounded so that a client streaming
 /// requests cannot hold the shutdown open.
 const MAX_FRAMES_AFTER_SHUTDOWN: usize = 256;
+
+/// Bytes of replies a connection gathers before writing them to the socket
+/// (it also writes whenever no further request is waiting).
+const WRITE_BUFFER: usize = 64 * 1024;
+
+/// Most replies a connection queues before it flushes even if more
+/// requests are waiting, so that a fast pipeliner still gets replies
+/// steadily.
+const MAX_UNFLUSHED: usize = 64;
 
 /// At shutdown, how long a connection waits for the next frame that may
 /// already be on its way before it closes.
@@ -246,7 +255,7 @@ async fn connection<H: Handler>(
         .max_message_size(Some(limits.max_message))
         .max_frame_size(Some(limits.max_message))
         .read_buffer_size(16 * 1024)
-        .write_buffer_size(0);
+        .write_buffer_size(WRITE_BUFFER);
     let accepted = timeout(
         limits.io_timeout,
         tokio_tungstenite::accept_async_with_config(stream, Some(config)),
@@ -266,18 +275,50 @@ async fn connection<H: Handler>(
     debug!(%peer, "connected");
     let mut session = handler.session();
     let mut out = vec![0u8; limits.response_capacity];
+    // Replies written but not yet flushed: a pipelining client gets them in
+    // one write, a client waiting for its reply gets it before we wait.
+    let mut unflushed = 0;
     loop {
-        let event = tokio::select! {
-            biased;
-            _ = stop.wait_for(|stopping| *stopping) => Event::Shutdown,
-            next = timeout(limits.idle_timeout, ws.next()) => match next {
-                Ok(Some(frame)) => Event::Frame(frame),
-                Ok(None) => Event::Ended,
-                Err(_) => Event::Idle,
-            },
+        let ready = if unflushed > 0 && unflushed < MAX_UNFLUSHED {
+            ws.next().now_or_never()
+        } else {
+            None
+        };
+        let event = match ready {
+            Some(Some(frame)) => Event::Frame(frame),
+            Some(None) => Event::Ended,
+            None => {
+                if unflushed > 0 {
+                    unflushed = 0;
+                    if !matches!(timeout(limits.io_timeout, ws.flush()).await, Ok(Ok(()))) {
+                        debug!(%peer, "replies not flushed; dropping the connection");
+                        break;
+                    }
+                }
+                tokio::select! {
+                    biased;
+                    _ = stop.wait_for(|stopping| *stopping) => Event::Shutdown,
+                    next = timeout(limits.idle_timeout, ws.next()) => match next {
+                        Ok(Some(frame)) => Event::Frame(frame),
+                        Ok(None) => Event::Ended,
+                        Err(_) => Event::Idle,
+                    },
+                }
+            }
         };
         let verdict = match event {
-            Event::Frame(frame) => on_frame(&mut ws, handler, &mut session, &mut out, frame, limits).await,
+            Event::Frame(frame) => {
+                on_frame(
+                    &mut ws,
+                    handler,
+                    &mut session,
+                    &mut out,
+                    frame,
+                    limits,
+                    &mut unflushed,
+                )
+                .await
+            }
             Event::Ended => Flow::Done,
             Event::Idle => {
                 debug!(%peer, "idle timeout");
@@ -292,7 +333,17 @@ async fn connection<H: Handler>(
                     let Ok(Some(frame)) = timeout(IN_FLIGHT_WAIT, ws.next()).await else {
                         break;
                     };
-                    match on_frame(&mut ws, handler, &mut session, &mut out, frame, limits).await {
+                    match on_frame(
+                        &mut ws,
+                        handler,
+                        &mut session,
+                        &mut out,
+                        frame,
+                        limits,
+                        &mut unflushed,
+                    )
+                    .await
+                    {
                         Flow::Continue => {}
                         other => {
                             verdict = other;
@@ -338,6 +389,7 @@ async fn on_frame<H: Handler>(
     out: &mut [u8],
     frame: Result<WsMessage, WsError>,
     limits: Limits,
+    unflushed: &mut usize,
 ) -> Flow {
     let outcome = match &frame {
         Ok(WsMessage::Text(text)) => handler.handle(session, Message::Text(text.as_bytes()), out),
@@ -364,9 +416,11 @@ async fn on_frame<H: Handler>(
         Outcome::Close(code) => (None, Some(code)),
     };
     if let Some(text) = reply {
-        let sent = timeout(limits.io_timeout, ws.send(WsMessage::text(text))).await;
+        // Queued, not flushed: the connection loop flushes once no further
+        // request is already waiting, and a close flushes first.
+        let sent = timeout(limits.io_timeout, ws.feed(WsMessage::text(text))).await;
         match sent {
-            Ok(Ok(())) => {}
+            Ok(Ok(())) => *unflushed += 1,
             Ok(Err(e)) => {
                 debug!(error = %e, "reply not sent");
                 return Flow::Done;
