@@ -21,6 +21,7 @@ use std::time::Duration;
 
 use futures_util::{FutureExt, SinkExt, StreamExt};
 use lluav_core::{CloseCode, Message, Outcome};
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
 use tokio::task::JoinSet;
@@ -243,14 +244,19 @@ enum Event {
     Shutdown,
 }
 
-/// One connection, from the HTTP upgrade to the closed socket.
-async fn connection<H: Handler>(
-    stream: TcpStream,
+/// One connection, from the HTTP upgrade to the closed socket, over any
+/// byte stream: `serve` passes TCP streams, the fuzz targets in-memory ones.
+/// `stop` turning true starts the shutdown of this connection.
+pub async fn connection<S, H>(
+    stream: S,
     peer: SocketAddr,
     handler: &H,
     limits: Limits,
     mut stop: watch::Receiver<bool>,
-) {
+) where
+    S: AsyncRead + AsyncWrite + Unpin,
+    H: Handler,
+{
     let config = WebSocketConfig::default()
         .max_message_size(Some(limits.max_message))
         .max_frame_size(Some(limits.max_message))
@@ -382,8 +388,8 @@ enum Flow {
     Close(WsCloseCode, &'static str),
 }
 
-async fn on_frame<H: Handler>(
-    ws: &mut WebSocketStream<TcpStream>,
+async fn on_frame<S: AsyncRead + AsyncWrite + Unpin, H: Handler>(
+    ws: &mut WebSocketStream<S>,
     handler: &H,
     session: &mut H::Session,
     out: &mut [u8],
@@ -439,7 +445,11 @@ async fn on_frame<H: Handler>(
 
 /// Sends a close frame and waits (bounded) for the peer's, so the close
 /// handshake completes; anything the peer sends meanwhile is discarded.
-async fn close(ws: &mut WebSocketStream<TcpStream>, code: WsCloseCode, reason: &'static str) {
+async fn close<S: AsyncRead + AsyncWrite + Unpin>(
+    ws: &mut WebSocketStream<S>,
+    code: WsCloseCode,
+    reason: &'static str,
+) {
     let frame = CloseFrame {
         code,
         reason: reason.into(),
