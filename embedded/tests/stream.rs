@@ -176,3 +176,42 @@ fn a_65535_byte_echo_uses_the_minimal_16_bit_length() {
     assert_eq!(r.wire[..4], [0x81, 126, 0xff, 0xff]);
     assert_eq!(r.frames, vec![(op::TEXT, text.into_bytes())]);
 }
+
+/// The two values embedded-websocket 0.9.5 stores in 24-byte strings with
+/// an `unwrap`: whatever their length, the connection answers (101 for a
+/// valid key and short protocols, 400 otherwise) and never panics.
+#[test]
+fn key_and_protocol_of_any_length_are_answered_never_a_panic() {
+    for len in 0..=64 {
+        let key: String = "dGhlIHNhbXBsZSBub25jZQ==".chars().cycle().take(len).collect();
+        let protocol = "p".repeat(len.max(1));
+        let request = upgrade_request(&format!(
+            "Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Protocol: {protocol}\r\n"
+        ));
+        let mut io = Pieces {
+            input: request.into_bytes(),
+            at: 0,
+            piece: 7,
+            output: Vec::new(),
+        };
+        let (mut raw, mut message, mut response, mut transmit) = ([0; 512], [0; 512], [0; 512], [0; 512]);
+        let buffers = Buffers {
+            raw: &mut raw,
+            message: &mut message,
+            response: &mut response,
+            transmit: &mut transmit,
+        };
+        let accepted = block_on(Connection::new(buffers, None).accept(&mut io)).is_ok();
+        let status = if accepted {
+            "HTTP/1.1 101 "
+        } else {
+            "HTTP/1.1 400 "
+        };
+        assert!(io.output.starts_with(status.as_bytes()), "key {len} bytes");
+        assert_eq!(
+            accepted,
+            len == 24 && protocol.len() <= 24,
+            "key and protocol of {len} bytes"
+        );
+    }
+}
