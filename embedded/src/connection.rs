@@ -150,6 +150,27 @@ impl Outbox<'_> {
         self.flush(io, len).await
     }
 
+    /// Carries out the service's answer; `Some(code)` when it closed.
+    async fn respond<T: Write>(
+        &mut self,
+        io: &mut T,
+        outcome: Outcome<'_>,
+    ) -> Result<Option<u16>, Error<T::Error>> {
+        match outcome {
+            Outcome::Reply(text) => {
+                self.send(io, WebSocketSendMessageType::Text, text.as_bytes())
+                    .await?;
+                Ok(None)
+            }
+            Outcome::ReplyThenClose(text, code) => {
+                self.send(io, WebSocketSendMessageType::Text, text.as_bytes())
+                    .await?;
+                self.close(io, code).await.map(Some)
+            }
+            Outcome::Close(code) => self.close(io, code).await.map(Some),
+        }
+    }
+
     /// Sends a close frame; returns the code for the caller to report.
     async fn close<T: Write>(&mut self, io: &mut T, code: CloseCode) -> Result<u16, Error<T::Error>> {
         let status = WebSocketCloseStatusCode::Custom(code.code());
@@ -246,7 +267,7 @@ impl<'b> Connection<'b> {
         service: &S,
     ) -> Result<u16, Error<T::Error>> {
         let mut session = service.open();
-        let reply_room = self.response.len() - TX_HEADER;
+        let reply_room = self.response.len().saturating_sub(TX_HEADER);
         // The opcode of the message being reassembled, and its length so far.
         let mut partial: Option<Opcode> = None;
         let mut len = 0usize;
@@ -279,11 +300,12 @@ impl<'b> Connection<'b> {
                 let outcome = service
                     .handle(&mut session, Message::Oversized, &mut self.response[..reply_room])
                     .await;
-                return match outcome {
-                    Outcome::Close(code) | Outcome::ReplyThenClose(_, code) => {
-                        self.outbox.close(io, code).await
-                    }
-                    Outcome::Reply(_) => self.outbox.close(io, CloseCode::TooBig).await,
+                // The frame's payload is still unread, so the connection
+                // cannot go on whatever the service answered.
+                let closed = self.outbox.respond(io, outcome).await?;
+                return match closed {
+                    Some(code) => Ok(code),
+                    None => self.outbox.close(io, CloseCode::TooBig).await,
                 };
             }
             self.payload(io, &header, len).await?;
@@ -299,19 +321,8 @@ impl<'b> Connection<'b> {
             let outcome = service
                 .handle(&mut session, message, &mut self.response[..reply_room])
                 .await;
-            match outcome {
-                Outcome::Reply(text) => {
-                    self.outbox
-                        .send(io, WebSocketSendMessageType::Text, text.as_bytes())
-                        .await?
-                }
-                Outcome::ReplyThenClose(text, code) => {
-                    self.outbox
-                        .send(io, WebSocketSendMessageType::Text, text.as_bytes())
-                        .await?;
-                    return self.outbox.close(io, code).await;
-                }
-                Outcome::Close(code) => return self.outbox.close(io, code).await,
+            if let Some(code) = self.outbox.respond(io, outcome).await? {
+                return Ok(code);
             }
         }
     }
