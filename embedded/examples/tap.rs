@@ -14,17 +14,14 @@
 //!
 //! `--echo` serves the echo configuration for the Autobahn|Testsuite.
 
-#[path = "../tests/support/executor.rs"]
-mod executor;
-
 use std::net::Ipv4Addr;
 
 use clap::Parser;
-use embassy_futures::join::join;
-use embassy_net::{Config as NetConfig, Ipv4Cidr, StackResources, StaticConfigV4};
+use embassy_executor::{Executor, Spawner};
+use embassy_net::{Config as NetConfig, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
 use embassy_net_tuntap::TunTapDevice;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
-use lluav_core::{Auth, Failure, Server};
+use lluav_core::{Auth, Clock, Failure, Server};
 use lluav_embedded::board::{Board, Led, Peripherals};
 use lluav_embedded::{Config, Echo, SharedServer, Slot, serve};
 
@@ -35,6 +32,8 @@ type BoardSlot = Slot<4096, 1024, 4096, 2048>;
 /// Autobahn sends text messages of up to 16 MiB and expects them echoed.
 const ECHO_FRAME: usize = 16 * 1024 * 1024 + 1024;
 type EchoSlot = Slot<65536, 4096, ECHO_FRAME, { ECHO_FRAME + 16 }>;
+
+type BoardServer = SharedServer<NoopRawMutex, Board<LoggedPeripherals>, SystemClock>;
 
 #[derive(Parser)]
 #[command(about = "LLUAV embedded adapter on a TAP interface")]
@@ -68,6 +67,36 @@ impl Peripherals for LoggedPeripherals {
         log::info!("PWM duty {duty}/65535");
         Ok(())
     }
+}
+
+/// `ts` from the host's wall clock.
+struct SystemClock;
+
+impl Clock for SystemClock {
+    fn unix_ms(&self) -> i64 {
+        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH);
+        now.map_or(0, |d| d.as_millis() as i64)
+    }
+}
+
+#[embassy_executor::task]
+async fn net_task(mut runner: embassy_net::Runner<'static, TunTapDevice>) -> ! {
+    runner.run().await
+}
+
+#[embassy_executor::task]
+async fn echo_task(stack: Stack<'static>, config: Config, slots: &'static mut [EchoSlot; SESSIONS]) -> ! {
+    serve(stack, &config, &Echo, slots).await
+}
+
+#[embassy_executor::task]
+async fn protocol_task(
+    stack: Stack<'static>,
+    config: Config,
+    server: &'static BoardServer,
+    slots: &'static mut [BoardSlot; SESSIONS],
+) -> ! {
+    serve(stack, &config, server, slots).await
 }
 
 fn parse_cidr(s: &str) -> Result<Ipv4Cidr, String> {
@@ -110,31 +139,32 @@ fn main() -> Result<(), String> {
         gateway: None,
         dns_servers: Default::default(),
     });
-    let (stack, mut runner) =
+    let (stack, runner) =
         embassy_net::new(device, net, leak(StackResources::<{ SESSIONS + 2 }>::new()), 0x53);
     let config = Config {
         port: args.port,
         ..Config::new()
     };
-    println!("listening on ws://{}:{}", address.address(), args.port);
-    if args.echo {
-        let slots: &mut [EchoSlot; SESSIONS] = zeroed_slots();
-        executor::block_on(async {
-            join(runner.run(), serve(stack, &config, &Echo, slots)).await;
-        });
+    let server = if args.echo {
+        None
     } else {
         let auth = Auth::new(args.password.as_deref()).map_err(|e| format!("password: {e:?}"))?;
-        let clock = || {
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0, |d| d.as_millis() as i64)
-        };
-        let server =
-            SharedServer::<NoopRawMutex, _, _>::new(Server::new(Board::new(LoggedPeripherals), clock, auth));
-        let slots = leak([const { BoardSlot::new() }; SESSIONS]);
-        executor::block_on(async {
-            join(runner.run(), serve(stack, &config, &server, slots)).await;
-        });
-    }
-    Err("the network stack stopped".into())
+        let board = Board::new(LoggedPeripherals);
+        Some(&*leak(SharedServer::<NoopRawMutex, _, _>::new(Server::new(
+            board,
+            SystemClock,
+            auth,
+        ))))
+    };
+    println!("listening on ws://{}:{}", address.address(), args.port);
+    leak(Executor::new()).run(move |spawner: Spawner| {
+        spawner.spawn(net_task(runner).expect("one net task"));
+        match server {
+            None => spawner.spawn(echo_task(stack, config, zeroed_slots()).expect("one echo task")),
+            Some(server) => {
+                let slots = leak([const { BoardSlot::new() }; SESSIONS]);
+                spawner.spawn(protocol_task(stack, config, server, slots).expect("one protocol task"))
+            }
+        }
+    })
 }
