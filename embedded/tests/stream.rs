@@ -215,3 +215,45 @@ fn key_and_protocol_of_any_length_are_answered_never_a_panic() {
         );
     }
 }
+
+/// Random bytes after a valid upgrade, and random mutations of valid
+/// frames: every connection ends with a close code we may send or a stream
+/// error, never a panic (a deterministic generator; the fuzzer goes further).
+#[test]
+fn arbitrary_frame_streams_end_in_a_close_or_an_error() {
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    let valid = [
+        masked(false, op::TEXT, b"st"),
+        masked(true, op::PING, b"x"),
+        masked(true, op::CONTINUATION, b"ate"),
+        masked(true, op::TEXT, &[b'a'; 300]),
+        masked(true, op::CLOSE, &1000u16.to_be_bytes()),
+    ];
+    for round in 0..2000 {
+        let mut frames: Vec<u8> = valid.concat();
+        if round % 2 == 0 {
+            let len = (next() % 600) as usize;
+            frames = (0..len).map(|_| next() as u8).collect();
+        } else {
+            for _ in 0..1 + next() % 4 {
+                let at = (next() as usize) % frames.len();
+                frames[at] = next() as u8;
+            }
+        }
+        let piece = 1 + (next() % 64) as usize;
+        let ended = run(&session(&[frames]), piece).ended;
+        match ended {
+            Ok(code) => assert!(
+                matches!(code, 1000..=1003 | 1007..=1011 | 3000..=4999),
+                "round {round}: {code}"
+            ),
+            Err(e) => assert_eq!(e, Error::PeerClosed, "round {round}"),
+        }
+    }
+}
