@@ -103,10 +103,15 @@ pub fn parse(head: &[u8]) -> Result<Upgrade<'_>, Rejection> {
             }
             key = Some(value);
         } else if name.eq_ignore_ascii_case("sec-websocket-protocol") {
+            // Entries as HTTP lists are read (comma, optional spaces), and
+            // also as embedded-websocket's reader cuts them (at ", " only):
+            // "a…a,b…b" is two short entries to the first reading but one
+            // long one to the second, which would hit its 24-byte unwrap.
             let ok = value
                 .split(',')
                 .map(|p| p.trim_matches([' ', '\t']))
-                .all(|p| !p.is_empty() && p.len() <= MAX_PROTOCOL_LEN);
+                .all(|p| !p.is_empty() && p.len() <= MAX_PROTOCOL_LEN)
+                && value.split(", ").all(|p| p.len() <= MAX_PROTOCOL_LEN);
             if !ok {
                 return Err(Rejection::BadProtocol);
             }
@@ -214,6 +219,12 @@ mod tests {
     #[test]
     fn rejects_a_protocol_longer_than_24_bytes() {
         let req = with("Sec-WebSocket-Protocol: chat, a-protocol-name-of-25-bytes");
+        assert_eq!(parse(req.as_bytes()), Err(Rejection::BadProtocol));
+    }
+
+    #[test]
+    fn rejects_protocols_that_embedded_websocket_would_read_as_one_long_entry() {
+        let req = with("Sec-WebSocket-Protocol: aaaaaaaaaaaaaaaaaaaa,bbbbbbbbbb");
         assert_eq!(parse(req.as_bytes()), Err(Rejection::BadProtocol));
     }
 

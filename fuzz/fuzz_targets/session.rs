@@ -10,8 +10,8 @@
 
 use libfuzzer_sys::fuzz_target;
 use lluav_core::{
-    Auth, Backend, CloseCode, Command, CommandId, Context, Failure, Fields, Message, Outcome, Server, Session,
-    error::messages, parse::split, table::lookup,
+    Auth, Backend, CloseCode, Command, CommandId, Context, Failure, Fields, Message, Outcome, Server,
+    Session, error::messages, parse::split, table::lookup,
 };
 
 enum Step<'a> {
@@ -55,7 +55,11 @@ impl Backend for Vehicle {
         let flags = cmd.id().spec().flags;
         assert!(!b.gated, "{:?} ran before login", cmd.id());
         assert!(!(b.armed && !flags.run_on_arm), "{:?} ran while armed", cmd.id());
-        assert!(!(b.locked && !b.admin && !flags.run_in_lock), "{:?} ran in lock mode", cmd.id());
+        assert!(
+            !(b.locked && !b.admin && !flags.run_in_lock),
+            "{:?} ran in lock mode",
+            cmd.id()
+        );
         assert!(!flags.admin_only || b.admin, "{:?} ran without admin", cmd.id());
         assert_eq!((ctx.admin, ctx.lock_mode), (b.admin, b.locked));
         match cmd.id() {
@@ -92,10 +96,22 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
         if ret == 0 {
             // A success the gates should have refused is a breach, also for
             // the commands the core answers itself (passwd, admin_lock, …).
-            assert!(!(b.gated && spec.id != CommandId::Login), "{frame:?} succeeded before login");
-            assert!(!(spec.flags.admin_only && !b.admin), "{frame:?} succeeded without admin");
-            assert!(!(b.armed && !spec.flags.run_on_arm), "{frame:?} succeeded while armed");
-            assert!(!(b.locked && !b.admin && !spec.flags.run_in_lock), "{frame:?} succeeded in lock");
+            assert!(
+                !(b.gated && spec.id != CommandId::Login),
+                "{frame:?} succeeded before login"
+            );
+            assert!(
+                !(spec.flags.admin_only && !b.admin),
+                "{frame:?} succeeded without admin"
+            );
+            assert!(
+                !(b.armed && !spec.flags.run_on_arm),
+                "{frame:?} succeeded while armed"
+            );
+            assert!(
+                !(b.locked && !b.admin && !spec.flags.run_in_lock),
+                "{frame:?} succeeded in lock"
+            );
         }
         if SAFETY.contains(&spec.id) {
             assert_ne!(msg, messages::ARMED, "{frame:?}");
@@ -108,9 +124,18 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&first, script)) = data.split_first() else { return };
+    let Some((&first, script)) = data.split_first() else {
+        return;
+    };
     let auth = Auth::new((first & 1 == 1).then_some("pw")).expect("valid password");
-    let mut server = Server::new(Vehicle { armed: false, before: None }, || 1_700_000_000_000_i64, auth);
+    let mut server = Server::new(
+        Vehicle {
+            armed: false,
+            before: None,
+        },
+        || 1_700_000_000_000_i64,
+        auth,
+    );
     let mut session = Session::new();
     let mut out = [0u8; 4096];
     for step in steps(script) {
