@@ -191,6 +191,11 @@ impl Lluavd {
         }
     }
 
+    /// The daemon's process id (for `/proc/PID/status` readings).
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
     /// What the daemon wrote to stderr so far.
     pub fn stderr(&self) -> String {
         self.stderr.lock().unwrap_or_else(|p| p.into_inner()).clone()

@@ -1,0 +1,639 @@
+//! Load generator: the real lluavd against a plain tokio-tungstenite echo
+//! server, side by side in one run.
+//!
+//! ```text
+//! cargo bench -p lluav-tests --bench load -- [--connections 1,10,100,1000]
+//!     [--messages M | --total N] [--idle N] [--client-threads T]
+//! ```
+//!
+//! For each connection count C, C WebSocket connections each send M
+//! commands closed-loop (the next one only after the previous reply), first
+//! to the echo server, then to lluavd; every round trip's latency goes into
+//! an HDR histogram. Both servers get the same frame text (`state`, which
+//! lluavd answers after a login with the vehicle's full state) and run the
+//! same way: as a separate process on tokio's default multi-thread runtime
+//! (lluavd is the release binary started through the test harness on port
+//! 0; the echo server is this very binary re-executed with `--serve-echo`),
+//! while the client runs on one thread here (`--client-threads`). So the
+//! client and the server under test share the machine's cores in the same
+//! way for both, and the echo server is the transport's ceiling: what
+//! tokio-tungstenite over loopback does with no protocol behind it.
+//!
+//! Before the load, each server is started fresh and N idle connections
+//! are opened (logged in, for lluavd); the growth of the server's VmRSS
+//! divided by N is the memory per idle connection.
+//!
+//! The summary at the end is a Markdown table for BENCHMARKS.md.
+
+use std::fmt;
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::time::Instant;
+
+use futures_util::{SinkExt, StreamExt, stream};
+use hdrhistogram::Histogram;
+use lluav_tests::{Lluavd, Options, WAIT};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::Barrier;
+use tokio::time::timeout;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
+
+const PASSWORD: &str = "bench";
+
+/// The command every connection sends: a full trip through the core's
+/// gates and the simulator, with a reply of a few hundred bytes.
+const FRAME: &str = "state";
+
+/// Connections opened at once while setting up a load, so the servers'
+/// accept backlogs never overflow.
+const CONNECT_CONCURRENCY: usize = 64;
+
+/// Highest latency the histograms hold (ns); a round trip is bounded by
+/// [`WAIT`] anyway.
+const MAX_LATENCY_NS: u64 = 120_000_000_000;
+
+type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
+
+/// Why a run failed.
+#[derive(Debug)]
+enum BenchError {
+    /// The command line was wrong.
+    Usage(String),
+    /// A connection or its WebSocket handshake failed.
+    Connect(String),
+    /// A wait took longer than [`WAIT`].
+    Timeout(&'static str),
+    /// The server closed a connection or the socket failed.
+    Lost(String),
+    /// The server answered something other than the expected reply.
+    WrongReply(String),
+    /// A process could not be started or read.
+    Process(String),
+}
+
+impl fmt::Display for BenchError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BenchError::Usage(m) => write!(f, "usage: {m}"),
+            BenchError::Connect(m) => write!(f, "cannot connect: {m}"),
+            BenchError::Timeout(what) => write!(f, "no {what} within {WAIT:?}"),
+            BenchError::Lost(m) => write!(f, "connection lost: {m}"),
+            BenchError::WrongReply(m) => write!(f, "unexpected reply: {m}"),
+            BenchError::Process(m) => write!(f, "process: {m}"),
+        }
+    }
+}
+
+struct Args {
+    connections: Vec<usize>,
+    /// Commands per connection; `None`: `total / C`.
+    messages: Option<usize>,
+    total: usize,
+    idle: usize,
+    client_threads: usize,
+    serve_echo: bool,
+}
+
+impl Args {
+    fn parse() -> Result<Args, BenchError> {
+        let mut args = Args {
+            connections: vec![1, 10, 100, 1000],
+            messages: None,
+            total: 100_000,
+            idle: 500,
+            client_threads: 1,
+            serve_echo: false,
+        };
+        let mut it = std::env::args().skip(1);
+        while let Some(arg) = it.next() {
+            let mut value = |name: &str| {
+                it.next()
+                    .ok_or_else(|| BenchError::Usage(format!("{name} needs a value")))
+            };
+            match arg.as_str() {
+                "--connections" => {
+                    args.connections = value("--connections")?
+                        .split(',')
+                        .map(|c| number("--connections", c))
+                        .collect::<Result<_, _>>()?;
+                }
+                "--messages" => args.messages = Some(number("--messages", &value("--messages")?)?),
+                "--total" => args.total = number("--total", &value("--total")?)?,
+                "--idle" => args.idle = number("--idle", &value("--idle")?)?,
+                "--client-threads" => {
+                    args.client_threads = number("--client-threads", &value("--client-threads")?)?
+                }
+                "--serve-echo" => args.serve_echo = true,
+                // cargo bench passes --bench to every bench binary.
+                "--bench" => {}
+                other => {
+                    return Err(BenchError::Usage(format!(
+                        "unknown argument {other}; \
+                         [--connections 1,10,100,1000] [--messages M | --total N] [--idle N] [--client-threads T]"
+                    )));
+                }
+            }
+        }
+        Ok(args)
+    }
+
+    fn messages_for(&self, connections: usize) -> usize {
+        // Every connection sends enough for its own warm-up and tail.
+        self.messages.unwrap_or((self.total / connections).max(20))
+    }
+}
+
+fn number(name: &str, text: &str) -> Result<usize, BenchError> {
+    match text.trim().parse() {
+        Ok(n) if n > 0 => Ok(n),
+        _ => Err(BenchError::Usage(format!(
+            "{name}: `{text}` is not a positive number"
+        ))),
+    }
+}
+
+fn main() {
+    let result = Args::parse().and_then(|args| {
+        if args.serve_echo {
+            serve_echo()
+        } else {
+            bench(&args)
+        }
+    });
+    if let Err(e) = result {
+        eprintln!("load: {e}");
+        std::process::exit(1);
+    }
+}
+
+fn client_runtime(threads: usize) -> Result<tokio::runtime::Runtime, BenchError> {
+    let built = if threads == 1 {
+        tokio::runtime::Builder::new_current_thread().enable_all().build()
+    } else {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(threads)
+            .enable_all()
+            .build()
+    };
+    built.map_err(|e| BenchError::Process(format!("client runtime: {e}")))
+}
+
+/// The server processes a load runs against.
+struct Servers {
+    echo: EchoServer,
+    lluavd: Lluavd,
+    _dir: tempfile::TempDir,
+}
+
+impl Servers {
+    fn start(max_connections: usize) -> Result<Servers, BenchError> {
+        let dir = tempfile::tempdir().map_err(|e| BenchError::Process(format!("temp dir: {e}")))?;
+        let mut options = Options::password(PASSWORD);
+        options.args = vec!["--max-connections".into(), max_connections.to_string()];
+        let lluavd = Lluavd::start(dir.path(), &options);
+        let echo = EchoServer::start()?;
+        Ok(Servers {
+            echo,
+            lluavd,
+            _dir: dir,
+        })
+    }
+}
+
+/// One row of the summary.
+struct Row {
+    connections: usize,
+    messages: usize,
+    echo: Stats,
+    lluavd: Stats,
+}
+
+fn bench(args: &Args) -> Result<(), BenchError> {
+    raise_open_file_limit(args.connections.iter().copied().max().unwrap_or(1).max(args.idle))?;
+    let load_before = load_average();
+    println!("lluavd:  {}", lluav_tests::lluavd_bin().display());
+    println!(
+        "machine: {} CPUs, load average {load_before}; client: {} thread(s); frame `{FRAME}`",
+        std::thread::available_parallelism().map_or(0, usize::from),
+        args.client_threads,
+    );
+    let runtime = client_runtime(args.client_threads)?;
+    let max_connections = args.connections.iter().copied().max().unwrap_or(1).max(args.idle) + 64;
+
+    // Memory first, on fresh processes: after a load, freed buffers would
+    // absorb new connections and hide their cost.
+    let memory = {
+        let servers = Servers::start(max_connections)?;
+        runtime.block_on(idle_memory(&servers, args.idle))?
+    };
+    println!(
+        "idle connections: {}; VmRSS per connection: echo {:.1} KiB, lluavd {:.1} KiB",
+        args.idle, memory.echo, memory.lluavd
+    );
+
+    let servers = Servers::start(max_connections)?;
+    let echo_url = servers.echo.url.clone();
+    let lluavd_url = servers.lluavd.url.clone();
+    let mut rows = Vec::new();
+    for &c in &args.connections {
+        let m = args.messages_for(c);
+        let echo = runtime.block_on(load(&echo_url, Target::Echo, c, m))?;
+        println!("echo    C={c:<5} M={m:<6} {echo}");
+        let lluavd = runtime.block_on(load(&lluavd_url, Target::Lluavd, c, m))?;
+        println!("lluavd  C={c:<5} M={m:<6} {lluavd}");
+        rows.push(Row {
+            connections: c,
+            messages: m,
+            echo,
+            lluavd,
+        });
+    }
+    drop(servers);
+    let load_after = load_average();
+    print_summary(&rows, &memory, args.idle, &load_before, &load_after);
+    Ok(())
+}
+
+/// The one-minute load averages from `/proc/loadavg`.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+/// 1000 client sockets here and as many in each server need more than the
+/// usual soft limit of 1024 descriptors; the servers inherit it.
+fn raise_open_file_limit(connections: usize) -> Result<(), BenchError> {
+    let needed = u64::try_from(connections)
+        .unwrap_or(u64::MAX)
+        .saturating_mul(2)
+        .saturating_add(256);
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes into the struct we pass and nothing else.
+    if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } != 0 {
+        return Err(BenchError::Process(format!(
+            "getrlimit: {}",
+            std::io::Error::last_os_error()
+        )));
+    }
+    if limit.rlim_cur >= needed {
+        return Ok(());
+    }
+    if limit.rlim_max < needed {
+        return Err(BenchError::Process(format!(
+            "{connections} connections need {needed} open files, the hard limit is {}",
+            limit.rlim_max
+        )));
+    }
+    limit.rlim_cur = needed;
+    // SAFETY: setrlimit only reads the struct we pass.
+    if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &limit) } != 0 {
+        return Err(BenchError::Process(format!(
+            "setrlimit: {}",
+            std::io::Error::last_os_error()
+        )));
+    }
+    Ok(())
+}
+
+/// Which server a connection talks to, and so what its replies must be.
+#[derive(Clone, Copy, Debug)]
+enum Target {
+    Echo,
+    Lluavd,
+}
+
+impl Target {
+    /// A reply counts only if it is the right one: the frame itself from the
+    /// echo server, a successful response (ret 0; the core always writes
+    /// `ret` first) from lluavd.
+    fn check(self, reply: &str) -> Result<(), BenchError> {
+        let ok = match self {
+            Target::Echo => reply == FRAME,
+            Target::Lluavd => reply.starts_with("{\"ret\":0,"),
+        };
+        if ok {
+            Ok(())
+        } else {
+            Err(BenchError::WrongReply(format!("{self:?}: {reply}")))
+        }
+    }
+}
+
+async fn connect(url: &str, target: Target) -> Result<Ws, BenchError> {
+    // Nagle off, as lluavd and the echo server have it: small request and
+    // reply frames must not wait for delayed ACKs.
+    let (mut ws, _) = timeout(
+        WAIT,
+        tokio_tungstenite::connect_async_with_config(url, None, true),
+    )
+    .await
+    .map_err(|_| BenchError::Timeout("WebSocket handshake"))?
+    .map_err(|e| BenchError::Connect(format!("{url}: {e}")))?;
+    match target {
+        Target::Lluavd => {
+            let reply = round_trip(&mut ws, &format!("login {PASSWORD}")).await?;
+            Target::Lluavd.check(&reply)?;
+        }
+        // The echo server's connection does its first read and write, as a
+        // login does for lluavd's.
+        Target::Echo => {
+            let reply = round_trip(&mut ws, FRAME).await?;
+            Target::Echo.check(&reply)?;
+        }
+    }
+    Ok(ws)
+}
+
+async fn connect_all(url: &str, target: Target, n: usize) -> Result<Vec<Ws>, BenchError> {
+    stream::iter(0..n)
+        .map(|_| connect(url, target))
+        .buffer_unordered(CONNECT_CONCURRENCY)
+        .collect::<Vec<_>>()
+        .await
+        .into_iter()
+        .collect()
+}
+
+async fn close_all(conns: Vec<Ws>) {
+    stream::iter(conns)
+        .for_each_concurrent(CONNECT_CONCURRENCY, |mut ws| async move {
+            let _ = timeout(WAIT, async {
+                let _ = ws.close(None).await;
+                while let Some(Ok(_)) = ws.next().await {}
+            })
+            .await;
+        })
+        .await;
+}
+
+/// Sends one text frame and returns the next text reply.
+async fn round_trip(ws: &mut Ws, frame: &str) -> Result<String, BenchError> {
+    ws.send(Message::text(frame))
+        .await
+        .map_err(|e| BenchError::Lost(e.to_string()))?;
+    loop {
+        let next = timeout(WAIT, ws.next())
+            .await
+            .map_err(|_| BenchError::Timeout("reply"))?;
+        match next {
+            Some(Ok(Message::Text(t))) => return Ok(t.as_str().to_owned()),
+            Some(Ok(Message::Ping(_) | Message::Pong(_) | Message::Frame(_))) => {}
+            Some(Ok(other)) => return Err(BenchError::WrongReply(format!("{other:?}"))),
+            Some(Err(e)) => return Err(BenchError::Lost(e.to_string())),
+            None => return Err(BenchError::Lost("stream ended".into())),
+        }
+    }
+}
+
+/// Throughput and latency of one load.
+struct Stats {
+    msgs_per_s: f64,
+    histogram: Histogram<u64>,
+}
+
+impl Stats {
+    fn micros(&self, quantile: f64) -> f64 {
+        self.histogram.value_at_quantile(quantile) as f64 / 1000.0
+    }
+}
+
+impl fmt::Display for Stats {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{:>9.0} msg/s  p50 {:>8.1} µs  p99 {:>8.1} µs  p99.9 {:>8.1} µs  max {:>9.1} µs  ({} samples)",
+            self.msgs_per_s,
+            self.micros(0.5),
+            self.micros(0.99),
+            self.micros(0.999),
+            self.histogram.max() as f64 / 1000.0,
+            self.histogram.len(),
+        )
+    }
+}
+
+fn histogram() -> Histogram<u64> {
+    // Bounds and precision are constants that hdrhistogram accepts.
+    Histogram::new_with_bounds(1, MAX_LATENCY_NS, 3).expect("valid histogram bounds")
+}
+
+/// C connections × M closed-loop commands; the first tenth of each
+/// connection's commands warms up and is not measured.
+async fn load(url: &str, target: Target, c: usize, m: usize) -> Result<Stats, BenchError> {
+    let conns = connect_all(url, target, c).await?;
+    let warm_up = (m / 10).max(1);
+    // Everyone starts the measured part together, after every warm-up.
+    let barrier = Arc::new(Barrier::new(c + 1));
+    let mut tasks = Vec::with_capacity(c);
+    for mut ws in conns {
+        let barrier = Arc::clone(&barrier);
+        tasks.push(tokio::spawn(async move {
+            let mut h = histogram();
+            let mut result = Ok(());
+            for _ in 0..warm_up {
+                result = round_trip(&mut ws, FRAME).await.and_then(|r| target.check(&r));
+                if result.is_err() {
+                    break;
+                }
+            }
+            // Waited for even after a failure, so the others are not stuck.
+            barrier.wait().await;
+            if result.is_ok() {
+                for _ in 0..m {
+                    let sent = Instant::now();
+                    result = round_trip(&mut ws, FRAME).await.and_then(|r| target.check(&r));
+                    if result.is_err() {
+                        break;
+                    }
+                    let ns = u64::try_from(sent.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                    h.saturating_record(ns);
+                }
+            }
+            (result, h, ws)
+        }));
+    }
+    barrier.wait().await;
+    let start = Instant::now();
+    let mut all = histogram();
+    let mut conns = Vec::with_capacity(c);
+    let mut failure = None;
+    for task in tasks {
+        let (result, h, ws) = task
+            .await
+            .map_err(|e| BenchError::Process(format!("client task: {e}")))?;
+        if let Err(e) = result {
+            failure.get_or_insert(e);
+        }
+        all.add(&h)
+            .map_err(|e| BenchError::Process(format!("histogram: {e:?}")))?;
+        conns.push(ws);
+    }
+    let elapsed = start.elapsed();
+    close_all(conns).await;
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    Ok(Stats {
+        msgs_per_s: all.len() as f64 / elapsed.as_secs_f64(),
+        histogram: all,
+    })
+}
+
+/// KiB of VmRSS per idle connection.
+struct Memory {
+    echo: f64,
+    lluavd: f64,
+}
+
+async fn idle_memory(servers: &Servers, n: usize) -> Result<Memory, BenchError> {
+    async fn per_connection(pid: u32, url: &str, target: Target, n: usize) -> Result<f64, BenchError> {
+        let before = vm_rss_kib(pid)?;
+        let conns = connect_all(url, target, n).await?;
+        // Every connection has been answered, so the server holds all of
+        // its state for it.
+        let after = vm_rss_kib(pid)?;
+        close_all(conns).await;
+        Ok((after as f64 - before as f64) / n as f64)
+    }
+    Ok(Memory {
+        echo: per_connection(servers.echo.child.id(), &servers.echo.url, Target::Echo, n).await?,
+        lluavd: per_connection(servers.lluavd.pid(), &servers.lluavd.url, Target::Lluavd, n).await?,
+    })
+}
+
+fn vm_rss_kib(pid: u32) -> Result<u64, BenchError> {
+    let path = format!("/proc/{pid}/status");
+    let status = std::fs::read_to_string(&path).map_err(|e| BenchError::Process(format!("{path}: {e}")))?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().strip_suffix("kB"))
+        .and_then(|v| v.trim().parse().ok())
+        .ok_or_else(|| BenchError::Process(format!("{path}: no VmRSS line")))
+}
+
+fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, load_after: &str) {
+    println!();
+    println!("load average before {load_before}, after {load_after}");
+    println!();
+    println!(
+        "| C | M/conn | echo msg/s | echo p50 / p99 / p99.9 µs | lluavd msg/s | lluavd p50 / p99 / p99.9 µs | throughput lluavd/echo | p99 lluavd/echo |"
+    );
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for r in rows {
+        println!(
+            "| {} | {} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} % | {:.2}x |",
+            r.connections,
+            r.messages,
+            r.echo.msgs_per_s,
+            r.echo.micros(0.5),
+            r.echo.micros(0.99),
+            r.echo.micros(0.999),
+            r.lluavd.msgs_per_s,
+            r.lluavd.micros(0.5),
+            r.lluavd.micros(0.99),
+            r.lluavd.micros(0.999),
+            100.0 * r.lluavd.msgs_per_s / r.echo.msgs_per_s,
+            r.lluavd.micros(0.99) / r.echo.micros(0.99),
+        );
+    }
+    println!();
+    println!(
+        "VmRSS per idle connection ({idle} connections): lluavd {:.1} KiB (logged in), echo {:.1} KiB",
+        memory.lluavd, memory.echo
+    );
+}
+
+/// The echo server as a child process (this binary with `--serve-echo`).
+struct EchoServer {
+    child: Child,
+    url: String,
+}
+
+impl EchoServer {
+    fn start() -> Result<EchoServer, BenchError> {
+        let exe = std::env::current_exe().map_err(|e| BenchError::Process(format!("current exe: {e}")))?;
+        let mut child = Command::new(exe)
+            .arg("--serve-echo")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .map_err(|e| BenchError::Process(format!("echo server: {e}")))?;
+        let stdout = child
+            .stdout
+            .take()
+            .ok_or_else(|| BenchError::Process("no stdout".into()))?;
+        let mut line = String::new();
+        // The child prints its line at once or fails; it exits when our end
+        // of its stdin closes, so a hang here would be a bug in it.
+        let read = BufReader::new(stdout).read_line(&mut line);
+        match line.trim().strip_prefix("listening on ") {
+            Some(url) if read.is_ok() => Ok(EchoServer {
+                url: url.to_owned(),
+                child,
+            }),
+            _ => {
+                let _ = child.kill();
+                let _ = child.wait();
+                Err(BenchError::Process(format!("echo server said {line:?}")))
+            }
+        }
+    }
+}
+
+impl Drop for EchoServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `--serve-echo`: a plain tokio-tungstenite echo server on the runtime
+/// lluavd uses (tokio's default multi-thread one), until stdin closes.
+fn serve_echo() -> Result<(), BenchError> {
+    // The parent holds our stdin: when it exits, however it exits, so do we.
+    std::thread::spawn(|| {
+        let mut sink = Vec::new();
+        let _ = std::io::Read::read_to_end(&mut std::io::stdin(), &mut sink);
+        std::process::exit(0);
+    });
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| BenchError::Process(format!("echo runtime: {e}")))?;
+    runtime.block_on(async {
+        let listener = TcpListener::bind("127.0.0.1:0")
+            .await
+            .map_err(|e| BenchError::Process(format!("echo bind: {e}")))?;
+        let addr = listener
+            .local_addr()
+            .map_err(|e| BenchError::Process(format!("echo address: {e}")))?;
+        println!("listening on ws://{addr}");
+        loop {
+            let Ok((stream, _)) = listener.accept().await else {
+                // Typically EMFILE; the client reports the refused connection.
+                continue;
+            };
+            let _ = stream.set_nodelay(true);
+            tokio::spawn(echo_connection(stream));
+        }
+    })
+}
+
+async fn echo_connection(stream: TcpStream) {
+    let Ok(mut ws) = tokio_tungstenite::accept_async(stream).await else {
+        return;
+    };
+    while let Some(Ok(message)) = ws.next().await {
+        if message.is_text() && ws.send(message).await.is_err() {
+            break;
+        }
+    }
+}
