@@ -1,0 +1,56 @@
+//! The vehicle of `core/benches/frames/workload.rs` (that file also holds
+//! std code, so it cannot be included here): the same fields for the same
+//! frames, so that instructions per frame compare with the host's.
+
+use lluav_core::{Args, Backend, Command, Context, Failure, Fields, Payload};
+
+/// The benchmark vehicle: a 12-field state, setpoint echo, waypoint ids,
+/// mission waypoint count.
+pub struct Vehicle {
+    /// Whether the vehicle is armed (the gate refusal needs it armed).
+    pub armed: bool,
+}
+
+impl Backend for Vehicle {
+    fn armed(&self) -> bool {
+        self.armed
+    }
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+        match cmd.args() {
+            Args::None => {
+                out.object("state", |s| {
+                    s.bool("armed", self.armed)
+                        .str("fsm", "hover")
+                        .bool("lock_mode", ctx.lock_mode)
+                        .f32("x", 1.5)
+                        .f32("y", -2.25)
+                        .f32("z", -10.0)
+                        .f32("vx", 0.0)
+                        .f32("vy", 0.1)
+                        .f32("vz", 0.0)
+                        .f32("yaw", 0.5)
+                        .f32("battery", 87.5);
+                });
+            }
+            Args::Setpoint(p) => {
+                out.f32("x", p.x).f32("y", p.y).f32("z", p.z).f32("yaw", p.yaw);
+            }
+            Args::MwExec { ext_id, wp_ids } => {
+                out.u64("ext_id", u64::from(*ext_id)).array("wp_ids", |a| {
+                    for id in wp_ids {
+                        a.u64(u64::from(*id));
+                    }
+                });
+            }
+            Args::Mission { ext_id, payload } => {
+                let n = match payload {
+                    Payload::Json(j) => j.matches("\"x\"").count(),
+                    Payload::Path(_) => 0,
+                };
+                out.u64("waypoints", n as u64).u64("ext_id", u64::from(*ext_id));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,101 @@
+/*
+ * A QEMU TCG plugin (QEMU 7.2's plugin ABI, version 1) that counts the guest
+ * instructions executed between two marker functions and prints one line
+ * "insns N" per interval, in order, on QEMU's log (stderr):
+ *
+ *   qemu-system-arm ... -plugin ./qemu-insn-between.so,start=0x1234,stop=0x1240 -d plugin
+ *
+ * start/stop are the marker functions' entry addresses (the Thumb bit is
+ * ignored). Each translation block adds its instruction count to a counter
+ * when it runs; a call ends a block, so a marker's entry always starts one.
+ * The interval therefore includes the markers' own few instructions, which
+ * cortex-m-instructions.sh measures with an empty interval and subtracts.
+ *
+ * Debian's QEMU is built with plugin support but ships neither plugins nor
+ * qemu-plugin.h, so the handful of API declarations this needs are below.
+ */
+#include <inttypes.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef uint64_t qemu_plugin_id_t;
+struct qemu_plugin_tb;
+typedef struct qemu_info_t qemu_info_t;
+
+enum qemu_plugin_cb_flags { QEMU_PLUGIN_CB_NO_REGS = 0 };
+enum qemu_plugin_op { QEMU_PLUGIN_INLINE_ADD_U64 = 0 };
+
+typedef void (*tb_trans_cb)(qemu_plugin_id_t id, struct qemu_plugin_tb *tb);
+typedef void (*vcpu_udata_cb)(unsigned int vcpu_index, void *userdata);
+
+void qemu_plugin_register_vcpu_tb_trans_cb(qemu_plugin_id_t id, tb_trans_cb cb);
+void qemu_plugin_register_vcpu_tb_exec_cb(struct qemu_plugin_tb *tb, vcpu_udata_cb cb,
+                                          enum qemu_plugin_cb_flags flags, void *userdata);
+void qemu_plugin_register_vcpu_tb_exec_inline(struct qemu_plugin_tb *tb, enum qemu_plugin_op op,
+                                              void *ptr, uint64_t imm);
+size_t qemu_plugin_tb_n_insns(const struct qemu_plugin_tb *tb);
+uint64_t qemu_plugin_tb_vaddr(const struct qemu_plugin_tb *tb);
+void qemu_plugin_outs(const char *string);
+
+__attribute__((visibility("default"))) int qemu_plugin_version = 1;
+
+/* One vCPU (the mps2 boards have one), so plain counters suffice. */
+static uint64_t executed;
+static uint64_t started;
+static uint64_t start_addr, stop_addr;
+
+static void on_start(unsigned int vcpu, void *udata)
+{
+    (void)vcpu;
+    (void)udata;
+    started = executed;
+}
+
+static void on_stop(unsigned int vcpu, void *udata)
+{
+    char line[64];
+    (void)vcpu;
+    (void)udata;
+    snprintf(line, sizeof line, "insns %" PRIu64 "\n", executed - started);
+    qemu_plugin_outs(line);
+}
+
+static void on_translate(qemu_plugin_id_t id, struct qemu_plugin_tb *tb)
+{
+    uint64_t pc = qemu_plugin_tb_vaddr(tb);
+    (void)id;
+    /* Whichever order QEMU runs the add and a marker's callback in, it is
+     * the same at both markers, so the interval is off by a constant. */
+    qemu_plugin_register_vcpu_tb_exec_inline(tb, QEMU_PLUGIN_INLINE_ADD_U64, &executed,
+                                             qemu_plugin_tb_n_insns(tb));
+    if (pc == start_addr) {
+        qemu_plugin_register_vcpu_tb_exec_cb(tb, on_start, QEMU_PLUGIN_CB_NO_REGS, NULL);
+    } else if (pc == stop_addr) {
+        qemu_plugin_register_vcpu_tb_exec_cb(tb, on_stop, QEMU_PLUGIN_CB_NO_REGS, NULL);
+    }
+}
+
+__attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t id,
+                                                               const qemu_info_t *info,
+                                                               int argc, char **argv)
+{
+    (void)info;
+    for (int i = 0; i < argc; i++) {
+        if (strncmp(argv[i], "start=", 6) == 0) {
+            start_addr = strtoull(argv[i] + 6, NULL, 0) & ~1ull;
+        } else if (strncmp(argv[i], "stop=", 5) == 0) {
+            stop_addr = strtoull(argv[i] + 5, NULL, 0) & ~1ull;
+        } else {
+            fprintf(stderr, "qemu-insn-between: unknown argument %s\n", argv[i]);
+            return -1;
+        }
+    }
+    if (start_addr == 0 || stop_addr == 0) {
+        fprintf(stderr, "qemu-insn-between: needs start=ADDR,stop=ADDR\n");
+        return -1;
+    }
+    qemu_plugin_register_vcpu_tb_trans_cb(id, on_translate);
+    return 0;
+}
