@@ -7,7 +7,7 @@
 
 use std::future::Future;
 use std::net::SocketAddr;
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use lluav_core::{Auth, AuthError, Backend, Clock, Message, Outcome, Server, Session};
@@ -93,8 +93,19 @@ impl<V: Vehicle> Handler for Protocol<V> {
     }
 
     fn handle<'o>(&self, session: &mut Session, message: Message<'o>, out: &'o mut [u8]) -> Outcome<'o> {
-        // A command may touch the disk (save_param fsyncs): let tokio move
-        // the other connections off this worker meanwhile.
+        // The common case, a free lock, runs right here: handing the worker
+        // to another thread for every frame (block_in_place) cost more than
+        // the frame itself (the load bench's profile: most of lluavd's CPU
+        // in futex wake-ups and sched_yield). A command that touches the
+        // disk (save_param fsyncs) then blocks this worker for that long;
+        // tokio's other workers steal its queued connections meanwhile.
+        match self.server.try_lock() {
+            Ok(mut server) => return server.handle(session, message, out),
+            Err(TryLockError::Poisoned(p)) => return p.into_inner().handle(session, message, out),
+            Err(TryLockError::WouldBlock) => {}
+        }
+        // Someone else holds the vehicle, perhaps for a slow command: wait
+        // off the worker so its other connections keep moving.
         let multi_thread =
             Handle::try_current().is_ok_and(|h| h.runtime_flavor() == RuntimeFlavor::MultiThread);
         if multi_thread {

@@ -234,6 +234,12 @@ fn bench(args: &Args) -> Result<(), BenchError> {
     );
 
     let servers = Servers::start(max_connections)?;
+    // For `perf record -p PID` or `/proc/PID/status` while the load runs.
+    println!(
+        "pids: lluavd {}, echo server {}",
+        servers.lluavd.pid(),
+        servers.echo.child.id()
+    );
     let echo_url = servers.echo.url.clone();
     let lluavd_url = servers.lluavd.url.clone();
     let mut rows = Vec::new();
