@@ -6,7 +6,9 @@
  *   qemu-system-arm ... -plugin ./qemu-insn-between.so,start=0x1234,stop=0x1240 -d plugin
  *
  * start/stop are the marker functions' entry addresses (the Thumb bit is
- * ignored). Each translation block adds its instruction count to a counter
+ * ignored). With profile=on it also prints, before each "insns" line, one
+ * "tb ADDR N" line per translation block that ran in the interval (N: the
+ * instructions it executed there), for attributing the count to functions. Each translation block adds its instruction count to a counter
  * when it runs; a call ends a block, so a marker's entry always starts one.
  * The interval therefore includes the markers' own few instructions, which
  * cortex-m-instructions.sh measures with an empty interval and subtracts.
@@ -45,12 +47,34 @@ __attribute__((visibility("default"))) int qemu_plugin_version = 1;
 static uint64_t executed;
 static uint64_t started;
 static uint64_t start_addr, stop_addr;
+static int profile;
+static int inside;
+
+/* Per translated block, for profile=on: a list, since one address can be
+ * translated more than once and blocks are never freed in a run this short. */
+struct block {
+    uint64_t vaddr;
+    uint64_t insns;
+    uint64_t executed;
+    struct block *next;
+};
+static struct block *blocks;
+
+static void on_block(unsigned int vcpu, void *udata)
+{
+    struct block *b = udata;
+    (void)vcpu;
+    if (inside) {
+        b->executed += b->insns;
+    }
+}
 
 static void on_start(unsigned int vcpu, void *udata)
 {
     (void)vcpu;
     (void)udata;
     started = executed;
+    inside = 1;
 }
 
 static void on_stop(unsigned int vcpu, void *udata)
@@ -58,6 +82,14 @@ static void on_stop(unsigned int vcpu, void *udata)
     char line[64];
     (void)vcpu;
     (void)udata;
+    inside = 0;
+    for (struct block *b = blocks; b != NULL; b = b->next) {
+        if (b->executed != 0) {
+            snprintf(line, sizeof line, "tb 0x%" PRIx64 " %" PRIu64 "\n", b->vaddr, b->executed);
+            qemu_plugin_outs(line);
+            b->executed = 0;
+        }
+    }
     snprintf(line, sizeof line, "insns %" PRIu64 "\n", executed - started);
     qemu_plugin_outs(line);
 }
@@ -70,6 +102,17 @@ static void on_translate(qemu_plugin_id_t id, struct qemu_plugin_tb *tb)
      * the same at both markers, so the interval is off by a constant. */
     qemu_plugin_register_vcpu_tb_exec_inline(tb, QEMU_PLUGIN_INLINE_ADD_U64, &executed,
                                              qemu_plugin_tb_n_insns(tb));
+    if (profile) {
+        struct block *b = calloc(1, sizeof *b);
+        if (b == NULL) {
+            abort();
+        }
+        b->vaddr = pc;
+        b->insns = qemu_plugin_tb_n_insns(tb);
+        b->next = blocks;
+        blocks = b;
+        qemu_plugin_register_vcpu_tb_exec_cb(tb, on_block, QEMU_PLUGIN_CB_NO_REGS, b);
+    }
     if (pc == start_addr) {
         qemu_plugin_register_vcpu_tb_exec_cb(tb, on_start, QEMU_PLUGIN_CB_NO_REGS, NULL);
     } else if (pc == stop_addr) {
@@ -87,6 +130,8 @@ __attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t 
             start_addr = strtoull(argv[i] + 6, NULL, 0) & ~1ull;
         } else if (strncmp(argv[i], "stop=", 5) == 0) {
             stop_addr = strtoull(argv[i] + 5, NULL, 0) & ~1ull;
+        } else if (strcmp(argv[i], "profile=on") == 0) {
+            profile = 1;
         } else {
             fprintf(stderr, "qemu-insn-between: unknown argument %s\n", argv[i]);
             return -1;

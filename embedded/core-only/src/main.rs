@@ -112,6 +112,12 @@ fn measure(server: &mut BenchServer, session: &mut Session, out: &mut [u8]) -> !
     use cortex_m_semihosting::{debug, hprintln};
     use lluav_core::Outcome;
 
+    // Every parse returns a Command by value; its size is what each move of
+    // one costs in copying.
+    hprintln!(
+        "size_of::<Command>() = {} bytes",
+        core::mem::size_of::<lluav_core::Command<'static>>()
+    );
     hprintln!("frame empty {}", REPS);
     for _ in 0..REPS {
         lluav_mark_start();
