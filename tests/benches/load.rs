@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo bench -p lluav-tests --bench load -- [--connections 1,10,100,1000]
-//!     [--messages M | --total N] [--idle N] [--client-threads T]
+//!     [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T]
 //! ```
 //!
 //! For each connection count C, C WebSocket connections each send M
@@ -29,7 +29,7 @@ use std::fmt;
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt, stream};
 use hdrhistogram::Histogram;
@@ -91,6 +91,7 @@ struct Args {
     /// Commands per connection; `None`: `total / C`.
     messages: Option<usize>,
     total: usize,
+    rounds: usize,
     idle: usize,
     client_threads: usize,
     serve_echo: bool,
@@ -101,7 +102,8 @@ impl Args {
         let mut args = Args {
             connections: vec![1, 10, 100, 1000],
             messages: None,
-            total: 100_000,
+            total: 50_000,
+            rounds: 2,
             idle: 500,
             client_threads: 1,
             serve_echo: false,
@@ -121,6 +123,7 @@ impl Args {
                 }
                 "--messages" => args.messages = Some(number("--messages", &value("--messages")?)?),
                 "--total" => args.total = number("--total", &value("--total")?)?,
+                "--rounds" => args.rounds = number("--rounds", &value("--rounds")?)?,
                 "--idle" => args.idle = number("--idle", &value("--idle")?)?,
                 "--client-threads" => {
                     args.client_threads = number("--client-threads", &value("--client-threads")?)?
@@ -131,7 +134,7 @@ impl Args {
                 other => {
                     return Err(BenchError::Usage(format!(
                         "unknown argument {other}; \
-                         [--connections 1,10,100,1000] [--messages M | --total N] [--idle N] [--client-threads T]"
+                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T]"
                     )));
                 }
             }
@@ -240,21 +243,55 @@ fn bench(args: &Args) -> Result<(), BenchError> {
         servers.lluavd.pid(),
         servers.echo.child.id()
     );
+    let (echo_pid, lluavd_pid) = (servers.echo.child.id(), servers.lluavd.pid());
     let echo_url = servers.echo.url.clone();
     let lluavd_url = servers.lluavd.url.clone();
+    let (echo_reply, lluavd_reply) = runtime.block_on(async {
+        let mut echo = connect(&echo_url, Target::Echo).await?;
+        let mut lluavd = connect(&lluavd_url, Target::Lluavd).await?;
+        Ok::<_, BenchError>((
+            round_trip(&mut echo, FRAME).await?,
+            round_trip(&mut lluavd, FRAME).await?,
+        ))
+    })?;
+    println!(
+        "replies to `{FRAME}`: echo {} bytes, lluavd {} bytes: {lluavd_reply}",
+        echo_reply.len(),
+        lluavd_reply.len()
+    );
     let mut rows = Vec::new();
     for &c in &args.connections {
         let m = args.messages_for(c);
-        let echo = runtime.block_on(load(&echo_url, Target::Echo, c, m))?;
-        println!("echo    C={c:<5} M={m:<6} {echo}");
-        let lluavd = runtime.block_on(load(&lluavd_url, Target::Lluavd, c, m))?;
-        println!("lluavd  C={c:<5} M={m:<6} {lluavd}");
-        rows.push(Row {
-            connections: c,
-            messages: m,
-            echo,
-            lluavd,
-        });
+        let (mut echo, mut lluavd) = (None::<Stats>, None::<Stats>);
+        for round in 0..args.rounds {
+            // Alternate who goes first, so that a change in the machine's
+            // background load does not always fall on the same server.
+            let order = if round % 2 == 0 {
+                [Target::Echo, Target::Lluavd]
+            } else {
+                [Target::Lluavd, Target::Echo]
+            };
+            for target in order {
+                let (url, pid, total) = match target {
+                    Target::Echo => (&echo_url, echo_pid, &mut echo),
+                    Target::Lluavd => (&lluavd_url, lluavd_pid, &mut lluavd),
+                };
+                let stats = runtime.block_on(load(url, pid, target, c, m))?;
+                println!("{:<7} C={c:<5} M={m:<6} round {round}: {stats}", target.name());
+                match total {
+                    Some(t) => t.merge(&stats)?,
+                    None => *total = Some(stats),
+                }
+            }
+        }
+        if let (Some(echo), Some(lluavd)) = (echo, lluavd) {
+            rows.push(Row {
+                connections: c,
+                messages: m,
+                echo,
+                lluavd,
+            });
+        }
     }
     drop(servers);
     let load_after = load_average();
@@ -315,6 +352,13 @@ enum Target {
 }
 
 impl Target {
+    fn name(self) -> &'static str {
+        match self {
+            Target::Echo => "echo",
+            Target::Lluavd => "lluavd",
+        }
+    }
+
     /// A reply counts only if it is the right one: the frame itself from the
     /// echo server, a successful response (ret 0; the core always writes
     /// `ret` first) from lluavd.
@@ -398,12 +442,42 @@ async fn round_trip(ws: &mut Ws, frame: &str) -> Result<String, BenchError> {
 }
 
 /// Throughput and latency of one load.
+/// Throughput and latency of one or more loads (rounds add up).
 struct Stats {
-    msgs_per_s: f64,
+    /// Wall time of the measured parts.
+    elapsed: Duration,
+    /// The server process's user + system CPU time meanwhile, in ticks.
+    server_ticks: u64,
+    /// This process's (the client's) CPU time meanwhile, in ticks.
+    client_ticks: u64,
     histogram: Histogram<u64>,
 }
 
 impl Stats {
+    fn msgs_per_s(&self) -> f64 {
+        self.histogram.len() as f64 / self.elapsed.as_secs_f64()
+    }
+
+    /// What each reply costs the server, whatever else shares the machine.
+    fn server_cpu_us_per_msg(&self) -> f64 {
+        ticks_to_s(self.server_ticks) * 1e6 / self.histogram.len() as f64
+    }
+
+    /// The client's CPU time over wall time: near 1.0 (it has one thread by
+    /// default) would mean the client, not the server, set the pace.
+    fn client_cpu_share(&self) -> f64 {
+        ticks_to_s(self.client_ticks) / self.elapsed.as_secs_f64()
+    }
+
+    fn merge(&mut self, other: &Stats) -> Result<(), BenchError> {
+        self.elapsed += other.elapsed;
+        self.server_ticks += other.server_ticks;
+        self.client_ticks += other.client_ticks;
+        self.histogram
+            .add(&other.histogram)
+            .map_err(|e| BenchError::Process(format!("histogram: {e:?}")))
+    }
+
     fn micros(&self, quantile: f64) -> f64 {
         self.histogram.value_at_quantile(quantile) as f64 / 1000.0
     }
@@ -413,12 +487,15 @@ impl fmt::Display for Stats {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "{:>9.0} msg/s  p50 {:>8.1} µs  p99 {:>8.1} µs  p99.9 {:>8.1} µs  max {:>9.1} µs  ({} samples)",
-            self.msgs_per_s,
+            "{:>7.0} msg/s  p50 {:>7.1} µs  p99 {:>8.1} µs  p99.9 {:>8.1} µs  max {:>9.1} µs  \
+             server CPU {:>5.1} µs/msg  client CPU {:>3.0} %  ({} samples)",
+            self.msgs_per_s(),
             self.micros(0.5),
             self.micros(0.99),
             self.micros(0.999),
             self.histogram.max() as f64 / 1000.0,
+            self.server_cpu_us_per_msg(),
+            100.0 * self.client_cpu_share(),
             self.histogram.len(),
         )
     }
@@ -431,7 +508,7 @@ fn histogram() -> Histogram<u64> {
 
 /// C connections × M closed-loop commands; the first tenth of each
 /// connection's commands warms up and is not measured.
-async fn load(url: &str, target: Target, c: usize, m: usize) -> Result<Stats, BenchError> {
+async fn load(url: &str, server_pid: u32, target: Target, c: usize, m: usize) -> Result<Stats, BenchError> {
     let conns = connect_all(url, target, c).await?;
     let warm_up = (m / 10).max(1);
     // Everyone starts the measured part together, after every warm-up.
@@ -466,6 +543,8 @@ async fn load(url: &str, target: Target, c: usize, m: usize) -> Result<Stats, Be
     }
     barrier.wait().await;
     let start = Instant::now();
+    let server_cpu_start = cpu_ticks(&format!("/proc/{server_pid}/stat"))?;
+    let client_cpu_start = cpu_ticks("/proc/self/stat")?;
     let mut all = histogram();
     let mut conns = Vec::with_capacity(c);
     let mut failure = None;
@@ -481,12 +560,16 @@ async fn load(url: &str, target: Target, c: usize, m: usize) -> Result<Stats, Be
         conns.push(ws);
     }
     let elapsed = start.elapsed();
+    let server_ticks = cpu_ticks(&format!("/proc/{server_pid}/stat"))?.saturating_sub(server_cpu_start);
+    let client_ticks = cpu_ticks("/proc/self/stat")?.saturating_sub(client_cpu_start);
     close_all(conns).await;
     if let Some(e) = failure {
         return Err(e);
     }
     Ok(Stats {
-        msgs_per_s: all.len() as f64 / elapsed.as_secs_f64(),
+        elapsed,
+        server_ticks,
+        client_ticks,
         histogram: all,
     })
 }
@@ -513,6 +596,26 @@ async fn idle_memory(servers: &Servers, n: usize) -> Result<Memory, BenchError> 
     })
 }
 
+/// utime + stime, in clock ticks, from a `/proc/PID/stat` file.
+fn cpu_ticks(path: &str) -> Result<u64, BenchError> {
+    let stat = std::fs::read_to_string(path).map_err(|e| BenchError::Process(format!("{path}: {e}")))?;
+    // The command name may hold spaces; the fields after it do not. utime
+    // and stime are fields 14 and 15, the 12th and 13th after the name.
+    let after_name = stat.rsplit_once(')').map(|(_, rest)| rest).unwrap_or_default();
+    let mut fields = after_name.split_whitespace().skip(11);
+    let mut next = || fields.next().and_then(|f| f.parse::<u64>().ok());
+    match (next(), next()) {
+        (Some(user), Some(system)) => Ok(user + system),
+        _ => Err(BenchError::Process(format!("{path}: no utime/stime"))),
+    }
+}
+
+fn ticks_to_s(ticks: u64) -> f64 {
+    // SAFETY: sysconf only reads a configuration value.
+    let per_s = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
+    ticks as f64 / if per_s > 0 { per_s as f64 } else { 100.0 }
+}
+
 fn vm_rss_kib(pid: u32) -> Result<u64, BenchError> {
     let path = format!("/proc/{pid}/status");
     let status = std::fs::read_to_string(&path).map_err(|e| BenchError::Process(format!("{path}: {e}")))?;
@@ -529,24 +632,29 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
     println!("load average before {load_before}, after {load_after}");
     println!();
     println!(
-        "| C | M/conn | echo msg/s | echo p50 / p99 / p99.9 µs | lluavd msg/s | lluavd p50 / p99 / p99.9 µs | throughput lluavd/echo | p99 lluavd/echo |"
+        "| C | M/conn | echo msg/s | echo p50 / p99 / p99.9 µs | lluavd msg/s | lluavd p50 / p99 / p99.9 µs | \
+         throughput lluavd/echo | p99 lluavd/echo | server CPU µs/msg echo / lluavd | client CPU echo / lluavd |"
     );
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         println!(
-            "| {} | {} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} % | {:.2}x |",
+            "| {} | {} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} % | {:.2}x | {:.1} / {:.1} | {:.0} % / {:.0} % |",
             r.connections,
             r.messages,
-            r.echo.msgs_per_s,
+            r.echo.msgs_per_s(),
             r.echo.micros(0.5),
             r.echo.micros(0.99),
             r.echo.micros(0.999),
-            r.lluavd.msgs_per_s,
+            r.lluavd.msgs_per_s(),
             r.lluavd.micros(0.5),
             r.lluavd.micros(0.99),
             r.lluavd.micros(0.999),
-            100.0 * r.lluavd.msgs_per_s / r.echo.msgs_per_s,
+            100.0 * r.lluavd.msgs_per_s() / r.echo.msgs_per_s(),
             r.lluavd.micros(0.99) / r.echo.micros(0.99),
+            r.echo.server_cpu_us_per_msg(),
+            r.lluavd.server_cpu_us_per_msg(),
+            100.0 * r.echo.client_cpu_share(),
+            100.0 * r.lluavd.client_cpu_share(),
         );
     }
     println!();
