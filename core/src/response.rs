@@ -84,27 +84,20 @@ impl Sink<'_> {
         self.bytes(bytes.get(start..).unwrap_or_default());
     }
 
-    fn uint(&mut self, mut v: u64) {
-        // Two digits per division, from a table, as integer formatters do.
-        const PAIRS: &[u8; 200] = b"0001020304050607080910111213141516171819\
-2021222324252627282930313233343536373839404142434445464748495051525354555657585960616263646566676869\
-707172737475767778798081828384858687888990919293949596979899";
+    fn uint(&mut self, v: u64) {
         let mut digits = [0u8; 20];
         let mut i = digits.len();
-        while v >= 10 {
-            let pair = usize::try_from(v % 100).unwrap_or_default() * 2;
-            v /= 100;
-            i -= 2;
-            if let (Some(dst), Some(src)) = (digits.get_mut(i..i + 2), PAIRS.get(pair..pair + 2)) {
-                dst.copy_from_slice(src);
-            }
+        // 32-bit cores emulate 64-bit division in software: peel eight
+        // digits off with one such division while the value needs 64 bits
+        // (a millisecond timestamp needs one), then go on in 32 bits.
+        let mut rest = v;
+        while rest > u64::from(u32::MAX) {
+            let low = u32::try_from(rest % 100_000_000).unwrap_or_default();
+            rest /= 100_000_000;
+            i = pairs(&mut digits, i, low, 8);
         }
-        if v > 0 || i == digits.len() {
-            i -= 1;
-            if let Some(d) = digits.get_mut(i) {
-                *d = b'0' + (v as u8);
-            }
-        }
+        let top = u32::try_from(rest).unwrap_or_default();
+        i = pairs(&mut digits, i, top, 1);
         self.bytes(digits.get(i..).unwrap_or_default());
     }
 
@@ -162,6 +155,32 @@ impl Sink<'_> {
         self.len = len;
         self.overflow = overflow;
     }
+}
+
+/// Writes `v` in decimal right-aligned before `digits[end]`, at least
+/// `min` digits (zero-padded), two digits per step from a table as integer
+/// formatters do; returns where the digits start.
+fn pairs(digits: &mut [u8; 20], mut end: usize, mut v: u32, min: usize) -> usize {
+    const PAIRS: &[u8; 200] = b"0001020304050607080910111213141516171819\
+2021222324252627282930313233343536373839404142434445464748495051525354555657585960616263646566676869\
+707172737475767778798081828384858687888990919293949596979899";
+    let stop = end.saturating_sub(min);
+    while v >= 10 || end > stop.saturating_add(1) {
+        let pair = (v % 100) as usize * 2;
+        v /= 100;
+        let start = end.saturating_sub(2);
+        if let (Some(dst), Some(src)) = (digits.get_mut(start..end), PAIRS.get(pair..pair + 2)) {
+            dst.copy_from_slice(src);
+        }
+        end = start;
+    }
+    if v > 0 || end > stop {
+        end = end.saturating_sub(1);
+        if let Some(d) = digits.get_mut(end) {
+            *d = b'0' + v as u8;
+        }
+    }
+    end
 }
 
 /// Bytes that JSON strings must escape.

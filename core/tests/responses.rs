@@ -260,3 +260,63 @@ fn help_fits_the_2_kib_mcu_response_buffer() {
 fn the_minimum_capacity_is_the_documented_270_bytes() {
     assert_eq!(MIN_RESPONSE_CAPACITY, 270, "README.md states this figure");
 }
+
+#[test]
+fn integers_are_written_exactly_across_the_whole_range() {
+    struct Ints(Vec<u64>);
+    impl Backend for Ints {
+        fn armed(&self) -> bool {
+            false
+        }
+        fn execute(&mut self, _: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+            out.array("u", |a| {
+                for v in &self.0 {
+                    a.u64(*v);
+                }
+            })
+            .array("i", |a| {
+                for v in &self.0 {
+                    a.i64(*v as i64);
+                }
+            });
+            Ok(())
+        }
+    }
+    let mut values = vec![
+        0,
+        1,
+        9,
+        10,
+        99,
+        100,
+        101,
+        4_294_967_295,
+        4_294_967_296,
+        100_000_000,
+        1_714_233_600_000,
+    ];
+    values.extend([
+        u64::MAX,
+        u64::MAX - 1,
+        i64::MAX as u64,
+        i64::MIN as u64,
+        10_000_000_000_000_000_000,
+    ]);
+    values.extend((0..20).map(|e| 10u64.pow(e)));
+    values.extend((0..20).map(|e| 10u64.pow(e) - 1));
+    values.extend((0..64).map(|b| 1u64 << b));
+    for ts in [0, -1, i64::MIN, i64::MAX, 1_714_233_600_000] {
+        let mut s = Server::new(Ints(values.clone()), move || ts, Auth::new(None).unwrap());
+        let mut sess = Session::new();
+        let mut out = vec![0u8; 8192];
+        let Outcome::Reply(r) = s.handle(&mut sess, Message::Text(b"state"), &mut out) else {
+            panic!()
+        };
+        let v = checked_json(r);
+        assert_eq!(v["ts"].as_i64(), Some(ts));
+        let u: Vec<u64> = serde_json::from_value(v["u"].clone()).unwrap();
+        let i: Vec<i64> = serde_json::from_value(v["i"].clone()).unwrap();
+        assert_eq!(u, values);
+        assert_eq!(i, values.iter().map(|v| *v as i64).collect::<Vec<_>>());
+    }
+}

@@ -86,22 +86,31 @@ pub(crate) fn list<T, const N: usize>(
     sep: char,
     item: impl Fn(&str) -> Result<T, ArgError>,
 ) -> Result<Vec<T, N>, ArgError> {
-    let field = || take_till::<_, _, NomError>(move |c| c == sep);
-    let push = |acc: Result<Vec<T, N>, ArgError>, token: &str| {
-        let mut v = acc?;
-        v.push(item(token)?).map_err(|_| ArgError::TooMany)?;
-        Ok(v)
+    // The list is filled in place: folding it through nom by value would
+    // copy the whole fixed-capacity vector once per field.
+    let mut items = Vec::new();
+    let mut failure = None;
+    let mut push = |token: &str| {
+        if failure.is_none()
+            && let Err(e) = item(token).and_then(|v| items.push(v).map_err(|_| ArgError::TooMany))
+        {
+            failure = Some(e);
+        }
     };
-    let first = field().parse(input).map_err(|_| ArgError::Malformed)?;
-    let (rest_input, first_token) = first;
-    let (_, folded) = all_consuming(fold_many0(
+    let field = || take_till::<_, _, NomError>(move |c| c == sep);
+    let (rest_input, first_token) = field().parse(input).map_err(|_| ArgError::Malformed)?;
+    push(first_token);
+    all_consuming(fold_many0(
         preceded(char(sep), field()),
-        || push(Ok(Vec::new()), first_token),
-        push,
+        || (),
+        |(), token| push(token),
     ))
     .parse(rest_input)
     .map_err(|_| ArgError::Malformed)?;
-    folded
+    match failure {
+        Some(e) => Err(e),
+        None => Ok(items),
+    }
 }
 
 /// Exactly `N` numbers separated by `sep`.
