@@ -60,10 +60,7 @@ impl Sink<'_> {
         let bytes = s.as_bytes();
         let mut start = 0;
         // Escapes are rare: copy the runs between them in one go.
-        while let Some(offset) = bytes
-            .get(start..)
-            .and_then(|rest| rest.iter().position(|&b| needs_escape(b)))
-        {
+        while let Some(offset) = bytes.get(start..).and_then(first_escape) {
             let at = start + offset;
             self.bytes(bytes.get(start..at).unwrap_or_default());
             let b = bytes.get(at).copied().unwrap_or_default();
@@ -186,6 +183,31 @@ fn pairs(digits: &mut [u8; 20], mut end: usize, mut v: u32, min: usize) -> usize
 /// Bytes that JSON strings must escape.
 fn needs_escape(b: u8) -> bool {
     b < 0x20 || b == b'"' || b == b'\\'
+}
+
+/// The index of the first byte that [`needs_escape`], testing eight bytes
+/// per step: strings are mostly long runs that need none.
+fn first_escape(bytes: &[u8]) -> Option<usize> {
+    const ONES: u64 = 0x0101_0101_0101_0101;
+    const HIGH: u64 = 0x8080_8080_8080_8080;
+    // Sets a byte's high bit where that byte of `x` is zero (exact as to
+    // whether any is; which one is then found bytewise).
+    let zero = |x: u64| x.wrapping_sub(ONES) & !x & HIGH;
+    let mut chunks = bytes.chunks_exact(8);
+    let mut offset = 0;
+    for chunk in &mut chunks {
+        let x = u64::from_le_bytes(chunk.try_into().unwrap_or_default());
+        let control = x.wrapping_sub(ONES * 0x20) & !x & HIGH;
+        if control | zero(x ^ (ONES * u64::from(b'"'))) | zero(x ^ (ONES * u64::from(b'\\'))) != 0 {
+            return chunk.iter().position(|&b| needs_escape(b)).map(|i| offset + i);
+        }
+        offset += 8;
+    }
+    chunks
+        .remainder()
+        .iter()
+        .position(|&b| needs_escape(b))
+        .map(|i| offset + i)
 }
 
 /// Writes the members of a JSON object: the command-specific fields of a

@@ -286,3 +286,36 @@ proptest! {
         }
     }
 }
+
+/// Writes the string it holds, as a key and as a value.
+struct Say(String);
+
+impl lluav_core::Backend for Say {
+    fn armed(&self) -> bool {
+        false
+    }
+    fn execute(
+        &mut self,
+        _: &Command<'_>,
+        _: &lluav_core::Context,
+        out: &mut lluav_core::Fields<'_>,
+    ) -> Result<(), lluav_core::Failure> {
+        out.str("said", &self.0).object("nested", |o| {
+            o.str(&self.0, &self.0);
+        });
+        Ok(())
+    }
+}
+
+proptest! {
+    #[test]
+    fn any_string_is_escaped_into_json_that_reads_back_the_same(text in prop_oneof!["\\PC{0,40}", ".{0,40}", "[\\x00-\\x7f]{0,40}"]) {
+        let mut s = lluav_core::Server::new(Say(text.clone()), || 0_i64, lluav_core::Auth::new(None).unwrap());
+        let mut sess = Session::new();
+        let mut out = vec![0u8; 4096];
+        let Outcome::Reply(r) = s.handle(&mut sess, Message::Text(b"state"), &mut out) else { panic!() };
+        let v = checked_json(r);
+        prop_assert_eq!(v["said"].as_str(), Some(text.as_str()));
+        prop_assert_eq!(v["nested"][text.as_str()].as_str(), Some(text.as_str()));
+    }
+}
