@@ -60,6 +60,7 @@ echo "$syms" | awk '
   }'
 echo
 echo "core-only: the $top largest symbols in flash:"
-echo "$syms" | sort -k2,2 -rn | head -n "$top" | awk '
+sort -k2,2 -rn <<<"$syms" | awk -v n="$top" 'NR > n { next }
+
   { size = $2 + 0; name = $0; sub(/^[^ ]+ [^ ]+ [^ ]+ /, "", name)
     sub(/::h[0-9a-f]{16}$/, "", name); printf "%10d  %s  %s\n", size, $3, substr(name, 1, 90) }'

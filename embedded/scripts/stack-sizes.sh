@@ -20,12 +20,13 @@ table=$("$readobj" --stack-sizes --demangle "$elf" | awk '
   /Functions:/ { sub(/.*Functions: \[/, ""); sub(/\]$/, ""); name = $0 }
   /Size:/ { printf "%8d  %s\n", $2, name }' | sort -rn)
 echo "largest stack frames (bytes, function):"
-echo "$table" | head -n "$top"
+# awk, not head: head exiting early would SIGPIPE the writer under pipefail.
+awk -v n="$top" 'NR <= n' <<<"$table"
 echo
 echo "frame-handling path (lluav_core, lluav_embedded, embedded_websocket):"
-echo "$table" | grep -E 'lluav_core|lluav_embedded|embedded_websocket|server_task' | head -n 40
+awk '/lluav_core|lluav_embedded|embedded_websocket|server_task/ && ++k <= 40' <<<"$table"
 
-largest=$(echo "$table" | head -n 1 | sed -E "s/^ +//")
+largest=$(awk 'NR == 1 { sub(/^ +/, ""); print }' <<<"$table")
 if (( ${largest%% *} > limit )); then
   echo "stack frame over ${limit} bytes: ${largest}" >&2
   exit 1
