@@ -10,6 +10,8 @@
 
 #[path = "../benches/frames/baseline.rs"]
 mod baseline;
+#[path = "../benches/frames/vehicle.rs"]
+mod vehicle;
 #[path = "../benches/frames/workload.rs"]
 mod workload;
 
@@ -40,7 +42,7 @@ fn main() {
     match which {
         "core" => {
             let clock: fn() -> i64 = || 1_714_233_600_000;
-            let vehicle = workload::Vehicle { armed: *armed };
+            let vehicle = vehicle::Vehicle { armed: *armed };
             let mut server = Server::new(vehicle, clock, Auth::new(Some("pw")).expect("password"));
             let mut session = Session::new();
             let mut out = vec![0u8; 64 * 1024];

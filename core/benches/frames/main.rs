@@ -5,6 +5,7 @@
 //! then a table of both means and their ratio, measured in the same run.
 
 mod baseline;
+mod vehicle;
 mod workload;
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -14,7 +15,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use baseline::{Baseline, BaselineSession};
 use criterion::{Criterion, Throughput};
 use lluav_core::{Auth, Message, Outcome, Server, Session};
-use workload::{Vehicle, mix};
+use vehicle::Vehicle;
+use workload::mix;
 
 struct Counting;
 static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);

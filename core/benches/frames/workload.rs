@@ -1,59 +1,9 @@
-//! The workload both implementations are measured on: the frame mix and
-//! the vehicle's answers (the baseline writes the same fields).
+//! The frame mix both implementations are measured on. Plain std, no
+//! lluav-core: `embedded/core-only/build.rs` includes this file to build
+//! the same frames for the Cortex-M counts.
 
-use lluav_core::{Args, Backend, Command, Context, Failure, Fields, Payload};
-
-/// The same vehicle answers as the baseline's: a 12-field state, setpoint
-/// echo, waypoint ids, mission waypoint count.
-pub struct Vehicle {
-    pub armed: bool,
-}
-
-impl Backend for Vehicle {
-    fn armed(&self) -> bool {
-        self.armed
-    }
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
-        match cmd.args() {
-            Args::None => {
-                out.object("state", |s| {
-                    s.bool("armed", self.armed)
-                        .str("fsm", "hover")
-                        .bool("lock_mode", ctx.lock_mode)
-                        .f32("x", 1.5)
-                        .f32("y", -2.25)
-                        .f32("z", -10.0)
-                        .f32("vx", 0.0)
-                        .f32("vy", 0.1)
-                        .f32("vz", 0.0)
-                        .f32("yaw", 0.5)
-                        .f32("battery", 87.5);
-                });
-            }
-            Args::Setpoint(p) => {
-                out.f32("x", p.x).f32("y", p.y).f32("z", p.z).f32("yaw", p.yaw);
-            }
-            Args::MwExec { ext_id, wp_ids } => {
-                out.u64("ext_id", u64::from(*ext_id)).array("wp_ids", |a| {
-                    for id in wp_ids {
-                        a.u64(u64::from(*id));
-                    }
-                });
-            }
-            Args::Mission { ext_id, payload } => {
-                let n = match payload {
-                    Payload::Json(j) => j.matches("\"x\"").count(),
-                    Payload::Path(_) => 0,
-                };
-                out.u64("waypoints", n as u64).u64("ext_id", u64::from(*ext_id));
-            }
-            _ => {}
-        }
-        Ok(())
-    }
-}
-
-fn mission_1k() -> String {
+/// The benchmark's mission frame: `mission 1001:` and about 1 KiB of JSON.
+pub fn mission_1k() -> String {
     let mut wps = Vec::new();
     let mut i = 0;
     loop {

@@ -14,6 +14,7 @@
 #![no_std]
 #![no_main]
 
+#[path = "../../../core/benches/frames/vehicle.rs"]
 mod vehicle;
 
 use core::hint::black_box;

@@ -1,13 +1,13 @@
-//! The vehicle of `core/benches/frames/workload.rs` (that file also holds
-//! std code, so it cannot be included here): the same fields for the same
-//! frames, so that instructions per frame compare with the host's.
+//! The benchmark vehicle: the same answers the std baseline writes. It
+//! uses lluav-core alone (no std), so the Cortex-M firmware in
+//! `embedded/core-only` includes this very file and its instruction counts
+//! are of the same work.
 
 use lluav_core::{Args, Backend, Command, Context, Failure, Fields, Payload};
 
-/// The benchmark vehicle: a 12-field state, setpoint echo, waypoint ids,
-/// mission waypoint count.
+/// The same vehicle answers as the baseline's: a 12-field state, setpoint
+/// echo, waypoint ids, mission waypoint count.
 pub struct Vehicle {
-    /// Whether the vehicle is armed (the gate refusal needs it armed).
     pub armed: bool,
 }
 
