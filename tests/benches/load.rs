@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo bench -p lluav-tests --bench load -- [--connections 1,10,100,1000]
-//!     [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T]
+//!     [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers]
 //! ```
 //!
 //! For each connection count C, C WebSocket connections each send M
@@ -38,6 +38,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Barrier;
 use tokio::time::timeout;
 use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 const PASSWORD: &str = "bench";
@@ -95,6 +96,9 @@ struct Args {
     idle: usize,
     client_threads: usize,
     serve_echo: bool,
+    /// The echo server keeps tungstenite's default buffers instead of
+    /// lluavd's.
+    echo_default_buffers: bool,
 }
 
 impl Args {
@@ -102,11 +106,12 @@ impl Args {
         let mut args = Args {
             connections: vec![1, 10, 100, 1000],
             messages: None,
-            total: 50_000,
+            total: 100_000,
             rounds: 2,
             idle: 500,
             client_threads: 1,
             serve_echo: false,
+            echo_default_buffers: false,
         };
         let mut it = std::env::args().skip(1);
         while let Some(arg) = it.next() {
@@ -129,12 +134,13 @@ impl Args {
                     args.client_threads = number("--client-threads", &value("--client-threads")?)?
                 }
                 "--serve-echo" => args.serve_echo = true,
+                "--echo-default-buffers" => args.echo_default_buffers = true,
                 // cargo bench passes --bench to every bench binary.
                 "--bench" => {}
                 other => {
                     return Err(BenchError::Usage(format!(
                         "unknown argument {other}; \
-                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T]"
+                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers]"
                     )));
                 }
             }
@@ -160,7 +166,7 @@ fn number(name: &str, text: &str) -> Result<usize, BenchError> {
 fn main() {
     let result = Args::parse().and_then(|args| {
         if args.serve_echo {
-            serve_echo()
+            serve_echo(args.echo_default_buffers)
         } else {
             bench(&args)
         }
@@ -191,12 +197,12 @@ struct Servers {
 }
 
 impl Servers {
-    fn start(max_connections: usize) -> Result<Servers, BenchError> {
+    fn start(max_connections: usize, echo_default_buffers: bool) -> Result<Servers, BenchError> {
         let dir = tempfile::tempdir().map_err(|e| BenchError::Process(format!("temp dir: {e}")))?;
         let mut options = Options::password(PASSWORD);
         options.args = vec!["--max-connections".into(), max_connections.to_string()];
         let lluavd = Lluavd::start(dir.path(), &options);
-        let echo = EchoServer::start()?;
+        let echo = EchoServer::start(echo_default_buffers)?;
         Ok(Servers {
             echo,
             lluavd,
@@ -228,7 +234,7 @@ fn bench(args: &Args) -> Result<(), BenchError> {
     // Memory first, on fresh processes: after a load, freed buffers would
     // absorb new connections and hide their cost.
     let memory = {
-        let servers = Servers::start(max_connections)?;
+        let servers = Servers::start(max_connections, args.echo_default_buffers)?;
         runtime.block_on(idle_memory(&servers, args.idle))?
     };
     println!(
@@ -236,7 +242,7 @@ fn bench(args: &Args) -> Result<(), BenchError> {
         args.idle, memory.echo, memory.lluavd
     );
 
-    let servers = Servers::start(max_connections)?;
+    let servers = Servers::start(max_connections, args.echo_default_buffers)?;
     // For `perf record -p PID` or `/proc/PID/status` while the load runs.
     println!(
         "pids: lluavd {}, echo server {}",
@@ -380,7 +386,7 @@ async fn connect(url: &str, target: Target) -> Result<Ws, BenchError> {
     // reply frames must not wait for delayed ACKs.
     let (mut ws, _) = timeout(
         WAIT,
-        tokio_tungstenite::connect_async_with_config(url, None, true),
+        tokio_tungstenite::connect_async_with_config(url, Some(transport_config()), true),
     )
     .await
     .map_err(|_| BenchError::Timeout("WebSocket handshake"))?
@@ -664,6 +670,19 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
     );
 }
 
+/// lluavd's tungstenite settings (`host/src/ws.rs`), for the echo server and
+/// the client. tungstenite zeroes `read_buffer_size` bytes before every
+/// read, so its default of 128 KiB costs microseconds per message and would
+/// make the echo server a lower ceiling than it need be.
+fn transport_config() -> WebSocketConfig {
+    let max_message = lluav_host::ws::Limits::default().max_message;
+    WebSocketConfig::default()
+        .max_message_size(Some(max_message))
+        .max_frame_size(Some(max_message))
+        .read_buffer_size(16 * 1024)
+        .write_buffer_size(64 * 1024)
+}
+
 /// The echo server as a child process (this binary with `--serve-echo`).
 struct EchoServer {
     child: Child,
@@ -671,10 +690,14 @@ struct EchoServer {
 }
 
 impl EchoServer {
-    fn start() -> Result<EchoServer, BenchError> {
+    fn start(default_buffers: bool) -> Result<EchoServer, BenchError> {
         let exe = std::env::current_exe().map_err(|e| BenchError::Process(format!("current exe: {e}")))?;
-        let mut child = Command::new(exe)
-            .arg("--serve-echo")
+        let mut command = Command::new(exe);
+        command.arg("--serve-echo");
+        if default_buffers {
+            command.arg("--echo-default-buffers");
+        }
+        let mut child = command
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -711,7 +734,7 @@ impl Drop for EchoServer {
 
 /// `--serve-echo`: a plain tokio-tungstenite echo server on the runtime
 /// lluavd uses (tokio's default multi-thread one), until stdin closes.
-fn serve_echo() -> Result<(), BenchError> {
+fn serve_echo(default_buffers: bool) -> Result<(), BenchError> {
     // The parent holds our stdin: when it exits, however it exits, so do we.
     std::thread::spawn(|| {
         let mut sink = Vec::new();
@@ -736,13 +759,14 @@ fn serve_echo() -> Result<(), BenchError> {
                 continue;
             };
             let _ = stream.set_nodelay(true);
-            tokio::spawn(echo_connection(stream));
+            let config = (!default_buffers).then(transport_config);
+            tokio::spawn(echo_connection(stream, config));
         }
     })
 }
 
-async fn echo_connection(stream: TcpStream) {
-    let Ok(mut ws) = tokio_tungstenite::accept_async(stream).await else {
+async fn echo_connection(stream: TcpStream, config: Option<WebSocketConfig>) {
+    let Ok(mut ws) = tokio_tungstenite::accept_async_with_config(stream, config).await else {
         return;
     };
     while let Some(Ok(message)) = ws.next().await {
