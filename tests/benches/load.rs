@@ -454,6 +454,8 @@ struct Stats {
     elapsed: Duration,
     /// The server process's user + system CPU time meanwhile, in ticks.
     server_ticks: u64,
+    /// The part of `server_ticks` spent in the kernel.
+    server_sys_ticks: u64,
     /// This process's (the client's) CPU time meanwhile, in ticks.
     client_ticks: u64,
     histogram: Histogram<u64>,
@@ -471,6 +473,11 @@ impl Stats {
 
     /// The client's CPU time over wall time: near 1.0 (it has one thread by
     /// default) would mean the client, not the server, set the pace.
+    /// The kernel's part of [`Stats::server_cpu_us_per_msg`].
+    fn server_sys_us_per_msg(&self) -> f64 {
+        ticks_to_s(self.server_sys_ticks) * 1e6 / self.histogram.len() as f64
+    }
+
     fn client_cpu_share(&self) -> f64 {
         ticks_to_s(self.client_ticks) / self.elapsed.as_secs_f64()
     }
@@ -478,6 +485,7 @@ impl Stats {
     fn merge(&mut self, other: &Stats) -> Result<(), BenchError> {
         self.elapsed += other.elapsed;
         self.server_ticks += other.server_ticks;
+        self.server_sys_ticks += other.server_sys_ticks;
         self.client_ticks += other.client_ticks;
         self.histogram
             .add(&other.histogram)
@@ -494,13 +502,14 @@ impl fmt::Display for Stats {
         write!(
             f,
             "{:>7.0} msg/s  p50 {:>7.1} µs  p99 {:>8.1} µs  p99.9 {:>8.1} µs  max {:>9.1} µs  \
-             server CPU {:>5.1} µs/msg  client CPU {:>3.0} %  ({} samples)",
+             server CPU {:>5.1} µs/msg ({:.1} in the kernel)  client CPU {:>3.0} %  ({} samples)",
             self.msgs_per_s(),
             self.micros(0.5),
             self.micros(0.99),
             self.micros(0.999),
             self.histogram.max() as f64 / 1000.0,
             self.server_cpu_us_per_msg(),
+            self.server_sys_us_per_msg(),
             100.0 * self.client_cpu_share(),
             self.histogram.len(),
         )
@@ -549,8 +558,9 @@ async fn load(url: &str, server_pid: u32, target: Target, c: usize, m: usize) ->
     }
     barrier.wait().await;
     let start = Instant::now();
-    let server_cpu_start = cpu_ticks(&format!("/proc/{server_pid}/stat"))?;
-    let client_cpu_start = cpu_ticks("/proc/self/stat")?;
+    let server_stat = format!("/proc/{server_pid}/stat");
+    let (server_user_start, server_sys_start) = cpu_ticks(&server_stat)?;
+    let client_cpu_start = cpu_ticks("/proc/self/stat").map(|(u, s)| u + s)?;
     let mut all = histogram();
     let mut conns = Vec::with_capacity(c);
     let mut failure = None;
@@ -566,8 +576,12 @@ async fn load(url: &str, server_pid: u32, target: Target, c: usize, m: usize) ->
         conns.push(ws);
     }
     let elapsed = start.elapsed();
-    let server_ticks = cpu_ticks(&format!("/proc/{server_pid}/stat"))?.saturating_sub(server_cpu_start);
-    let client_ticks = cpu_ticks("/proc/self/stat")?.saturating_sub(client_cpu_start);
+    let (server_user, server_sys) = cpu_ticks(&server_stat)?;
+    let server_sys_ticks = server_sys.saturating_sub(server_sys_start);
+    let server_ticks = server_user.saturating_sub(server_user_start) + server_sys_ticks;
+    let client_ticks = cpu_ticks("/proc/self/stat")
+        .map(|(u, s)| u + s)?
+        .saturating_sub(client_cpu_start);
     close_all(conns).await;
     if let Some(e) = failure {
         return Err(e);
@@ -575,6 +589,7 @@ async fn load(url: &str, server_pid: u32, target: Target, c: usize, m: usize) ->
     Ok(Stats {
         elapsed,
         server_ticks,
+        server_sys_ticks,
         client_ticks,
         histogram: all,
     })
@@ -602,8 +617,8 @@ async fn idle_memory(servers: &Servers, n: usize) -> Result<Memory, BenchError> 
     })
 }
 
-/// utime + stime, in clock ticks, from a `/proc/PID/stat` file.
-fn cpu_ticks(path: &str) -> Result<u64, BenchError> {
+/// (utime, stime), in clock ticks, from a `/proc/PID/stat` file.
+fn cpu_ticks(path: &str) -> Result<(u64, u64), BenchError> {
     let stat = std::fs::read_to_string(path).map_err(|e| BenchError::Process(format!("{path}: {e}")))?;
     // The command name may hold spaces; the fields after it do not. utime
     // and stime are fields 14 and 15, the 12th and 13th after the name.
@@ -611,7 +626,7 @@ fn cpu_ticks(path: &str) -> Result<u64, BenchError> {
     let mut fields = after_name.split_whitespace().skip(11);
     let mut next = || fields.next().and_then(|f| f.parse::<u64>().ok());
     match (next(), next()) {
-        (Some(user), Some(system)) => Ok(user + system),
+        (Some(user), Some(system)) => Ok((user, system)),
         _ => Err(BenchError::Process(format!("{path}: no utime/stime"))),
     }
 }
@@ -639,12 +654,12 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
     println!();
     println!(
         "| C | M/conn | echo msg/s | echo p50 / p99 / p99.9 µs | lluavd msg/s | lluavd p50 / p99 / p99.9 µs | \
-         throughput lluavd/echo | p99 lluavd/echo | server CPU µs/msg echo / lluavd | client CPU echo / lluavd |"
+         throughput lluavd/echo | p99 lluavd/echo | server CPU µs/msg (kernel) echo / lluavd | client CPU echo / lluavd |"
     );
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         println!(
-            "| {} | {} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} % | {:.2}x | {:.1} / {:.1} | {:.0} % / {:.0} % |",
+            "| {} | {} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} % | {:.2}x | {:.1} ({:.1}) / {:.1} ({:.1}) | {:.0} % / {:.0} % |",
             r.connections,
             r.messages,
             r.echo.msgs_per_s(),
@@ -658,7 +673,9 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
             100.0 * r.lluavd.msgs_per_s() / r.echo.msgs_per_s(),
             r.lluavd.micros(0.99) / r.echo.micros(0.99),
             r.echo.server_cpu_us_per_msg(),
+            r.echo.server_sys_us_per_msg(),
             r.lluavd.server_cpu_us_per_msg(),
+            r.lluavd.server_sys_us_per_msg(),
             100.0 * r.echo.client_cpu_share(),
             100.0 * r.lluavd.client_cpu_share(),
         );
