@@ -23,6 +23,10 @@ use crate::ws::{self, Echo, Handler, Limits};
 /// How often the vehicle is advanced.
 pub const TICK: Duration = Duration::from_millis(50);
 
+/// Attempts to take a contended vehicle lock before waiting for it off the
+/// worker: a few microseconds, several times a typical critical section.
+const LOCK_SPINS: u32 = 256;
+
 /// `ts` from the system clock.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SystemClock;
@@ -99,13 +103,18 @@ impl<V: Vehicle> Handler for Protocol<V> {
         // in futex wake-ups and sched_yield). A command that touches the
         // disk (save_param fsyncs) then blocks this worker for that long;
         // tokio's other workers steal its queued connections meanwhile.
-        match self.server.try_lock() {
-            Ok(mut server) => return server.handle(session, message, out),
-            Err(TryLockError::Poisoned(p)) => return p.into_inner().handle(session, message, out),
-            Err(TryLockError::WouldBlock) => {}
+        // Another frame or the tick holds the lock for a microsecond or
+        // so: spin briefly rather than hand the worker over at once, since
+        // the hand-off wakes another thread, many times that long.
+        for _ in 0..LOCK_SPINS {
+            match self.server.try_lock() {
+                Ok(mut server) => return server.handle(session, message, out),
+                Err(TryLockError::Poisoned(p)) => return p.into_inner().handle(session, message, out),
+                Err(TryLockError::WouldBlock) => std::hint::spin_loop(),
+            }
         }
-        // Someone else holds the vehicle, perhaps for a slow command: wait
-        // off the worker so its other connections keep moving.
+        // Still held, perhaps by a slow command: wait off the worker so its
+        // other connections keep moving.
         let multi_thread =
             Handle::try_current().is_ok_and(|h| h.runtime_flavor() == RuntimeFlavor::MultiThread);
         if multi_thread {
