@@ -25,7 +25,7 @@ use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
 use tokio::task::JoinSet;
-use tokio::time::timeout;
+use tokio::time::{Instant, timeout};
 use tokio_tungstenite::WebSocketStream;
 use tokio_tungstenite::tungstenite::handshake::server::{Callback, ErrorResponse, Request, Response};
 use tokio_tungstenite::tungstenite::http::StatusCode;
@@ -284,6 +284,15 @@ pub async fn connection<S, H>(
     // Replies written but not yet flushed: a pipelining client gets them in
     // one write, a client waiting for its reply gets it before we wait.
     let mut unflushed = 0;
+    // One idle timer and one shutdown wait for the whole connection: made
+    // afresh for every frame, they cost a timer-wheel registration and a
+    // watch registration per request. The timer is re-armed only when it
+    // fires, from the time of the last frame.
+    let idle = tokio::time::sleep(limits.idle_timeout);
+    tokio::pin!(idle);
+    let mut last_frame = Instant::now();
+    let stopping = stop.wait_for(|stopping| *stopping);
+    tokio::pin!(stopping);
     loop {
         let ready = if unflushed > 0 && unflushed < MAX_UNFLUSHED {
             ws.next().now_or_never()
@@ -301,17 +310,28 @@ pub async fn connection<S, H>(
                         break;
                     }
                 }
-                tokio::select! {
-                    biased;
-                    _ = stop.wait_for(|stopping| *stopping) => Event::Shutdown,
-                    next = timeout(limits.idle_timeout, ws.next()) => match next {
-                        Ok(Some(frame)) => Event::Frame(frame),
-                        Ok(None) => Event::Ended,
-                        Err(_) => Event::Idle,
-                    },
+                loop {
+                    tokio::select! {
+                        biased;
+                        _ = &mut stopping => break Event::Shutdown,
+                        next = ws.next() => break match next {
+                            Some(frame) => Event::Frame(frame),
+                            None => Event::Ended,
+                        },
+                        () = &mut idle => {
+                            let deadline = last_frame + limits.idle_timeout;
+                            if Instant::now() >= deadline {
+                                break Event::Idle;
+                            }
+                            idle.as_mut().reset(deadline);
+                        }
+                    }
                 }
             }
         };
+        if matches!(event, Event::Frame(_)) {
+            last_frame = Instant::now();
+        }
         let verdict = match event {
             Event::Frame(frame) => {
                 on_frame(
