@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo bench -p lluav-tests --bench load -- [--connections 1,10,100,1000]
-//!     [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers]
+//!     [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers] [--lluavd-echo]
 //! ```
 //!
 //! For each connection count C, C WebSocket connections each send M
@@ -99,6 +99,9 @@ struct Args {
     /// The echo server keeps tungstenite's default buffers instead of
     /// lluavd's.
     echo_default_buffers: bool,
+    /// Also load `lluavd --echo`: lluavd's connection code with its echo
+    /// handler, to split lluavd's cost into transport and protocol.
+    lluavd_echo: bool,
 }
 
 impl Args {
@@ -112,6 +115,7 @@ impl Args {
             client_threads: 1,
             serve_echo: false,
             echo_default_buffers: false,
+            lluavd_echo: false,
         };
         let mut it = std::env::args().skip(1);
         while let Some(arg) = it.next() {
@@ -135,12 +139,13 @@ impl Args {
                 }
                 "--serve-echo" => args.serve_echo = true,
                 "--echo-default-buffers" => args.echo_default_buffers = true,
+                "--lluavd-echo" => args.lluavd_echo = true,
                 // cargo bench passes --bench to every bench binary.
                 "--bench" => {}
                 other => {
                     return Err(BenchError::Usage(format!(
                         "unknown argument {other}; \
-                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers]"
+                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers] [--lluavd-echo]"
                     )));
                 }
             }
@@ -193,19 +198,32 @@ fn client_runtime(threads: usize) -> Result<tokio::runtime::Runtime, BenchError>
 struct Servers {
     echo: EchoServer,
     lluavd: Lluavd,
+    lluavd_echo: Option<Lluavd>,
     _dir: tempfile::TempDir,
 }
 
 impl Servers {
-    fn start(max_connections: usize, echo_default_buffers: bool) -> Result<Servers, BenchError> {
+    fn start(max_connections: usize, args: &Args) -> Result<Servers, BenchError> {
         let dir = tempfile::tempdir().map_err(|e| BenchError::Process(format!("temp dir: {e}")))?;
         let mut options = Options::password(PASSWORD);
         options.args = vec!["--max-connections".into(), max_connections.to_string()];
         let lluavd = Lluavd::start(dir.path(), &options);
-        let echo = EchoServer::start(echo_default_buffers)?;
+        let lluavd_echo = args.lluavd_echo.then(|| {
+            let options = Options {
+                args: vec![
+                    "--echo".into(),
+                    "--max-connections".into(),
+                    max_connections.to_string(),
+                ],
+                ..Options::default()
+            };
+            Lluavd::start(&dir.path().join("echo"), &options)
+        });
+        let echo = EchoServer::start(args.echo_default_buffers)?;
         Ok(Servers {
             echo,
             lluavd,
+            lluavd_echo,
             _dir: dir,
         })
     }
@@ -217,6 +235,7 @@ struct Row {
     messages: usize,
     echo: Stats,
     lluavd: Stats,
+    lluavd_echo: Option<Stats>,
 }
 
 fn bench(args: &Args) -> Result<(), BenchError> {
@@ -234,7 +253,7 @@ fn bench(args: &Args) -> Result<(), BenchError> {
     // Memory first, on fresh processes: after a load, freed buffers would
     // absorb new connections and hide their cost.
     let memory = {
-        let servers = Servers::start(max_connections, args.echo_default_buffers)?;
+        let servers = Servers::start(max_connections, args)?;
         runtime.block_on(idle_memory(&servers, args.idle))?
     };
     println!(
@@ -242,7 +261,7 @@ fn bench(args: &Args) -> Result<(), BenchError> {
         args.idle, memory.echo, memory.lluavd
     );
 
-    let servers = Servers::start(max_connections, args.echo_default_buffers)?;
+    let servers = Servers::start(max_connections, args)?;
     // For `perf record -p PID` or `/proc/PID/status` while the load runs.
     println!(
         "pids: lluavd {}, echo server {}",
@@ -268,19 +287,23 @@ fn bench(args: &Args) -> Result<(), BenchError> {
     let mut rows = Vec::new();
     for &c in &args.connections {
         let m = args.messages_for(c);
-        let (mut echo, mut lluavd) = (None::<Stats>, None::<Stats>);
+        let (mut echo, mut lluavd, mut lluavd_echo) = (None::<Stats>, None::<Stats>, None::<Stats>);
         for round in 0..args.rounds {
             // Alternate who goes first, so that a change in the machine's
             // background load does not always fall on the same server.
-            let order = if round % 2 == 0 {
-                [Target::Echo, Target::Lluavd]
-            } else {
-                [Target::Lluavd, Target::Echo]
-            };
+            let mut order = vec![Target::Echo, Target::Lluavd];
+            if servers.lluavd_echo.is_some() {
+                order.push(Target::LluavdEcho);
+            }
+            if round % 2 == 1 {
+                order.reverse();
+            }
             for target in order {
-                let (url, pid, total) = match target {
-                    Target::Echo => (&echo_url, echo_pid, &mut echo),
-                    Target::Lluavd => (&lluavd_url, lluavd_pid, &mut lluavd),
+                let (url, pid, total) = match (target, &servers.lluavd_echo) {
+                    (Target::Echo, _) => (&echo_url, echo_pid, &mut echo),
+                    (Target::Lluavd, _) => (&lluavd_url, lluavd_pid, &mut lluavd),
+                    (Target::LluavdEcho, Some(d)) => (&d.url, d.pid(), &mut lluavd_echo),
+                    (Target::LluavdEcho, None) => continue,
                 };
                 let stats = runtime.block_on(load(url, pid, target, c, m))?;
                 println!("{:<7} C={c:<5} M={m:<6} round {round}: {stats}", target.name());
@@ -296,6 +319,7 @@ fn bench(args: &Args) -> Result<(), BenchError> {
                 messages: m,
                 echo,
                 lluavd,
+                lluavd_echo,
             });
         }
     }
@@ -355,6 +379,7 @@ fn raise_open_file_limit(connections: usize) -> Result<(), BenchError> {
 enum Target {
     Echo,
     Lluavd,
+    LluavdEcho,
 }
 
 impl Target {
@@ -362,6 +387,7 @@ impl Target {
         match self {
             Target::Echo => "echo",
             Target::Lluavd => "lluavd",
+            Target::LluavdEcho => "lluavd --echo",
         }
     }
 
@@ -370,7 +396,7 @@ impl Target {
     /// `ret` first) from lluavd.
     fn check(self, reply: &str) -> Result<(), BenchError> {
         let ok = match self {
-            Target::Echo => reply == FRAME,
+            Target::Echo | Target::LluavdEcho => reply == FRAME,
             Target::Lluavd => reply.starts_with("{\"ret\":0,"),
         };
         if ok {
@@ -398,9 +424,9 @@ async fn connect(url: &str, target: Target) -> Result<Ws, BenchError> {
         }
         // The echo server's connection does its first read and write, as a
         // login does for lluavd's.
-        Target::Echo => {
+        Target::Echo | Target::LluavdEcho => {
             let reply = round_trip(&mut ws, FRAME).await?;
-            Target::Echo.check(&reply)?;
+            target.check(&reply)?;
         }
     }
     Ok(ws)
@@ -679,6 +705,29 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
             100.0 * r.echo.client_cpu_share(),
             100.0 * r.lluavd.client_cpu_share(),
         );
+    }
+    if rows.iter().any(|r| r.lluavd_echo.is_some()) {
+        println!();
+        println!(
+            "| C | lluavd --echo msg/s | lluavd --echo p50 / p99 / p99.9 µs | throughput against echo | p99 against echo | server CPU µs/msg (kernel) |"
+        );
+        println!("|---:|---:|---:|---:|---:|---:|");
+        for r in rows {
+            if let Some(e) = &r.lluavd_echo {
+                println!(
+                    "| {} | {:.0} | {:.0} / {:.0} / {:.0} | {:.0} % | {:.2}x | {:.1} ({:.1}) |",
+                    r.connections,
+                    e.msgs_per_s(),
+                    e.micros(0.5),
+                    e.micros(0.99),
+                    e.micros(0.999),
+                    100.0 * e.msgs_per_s() / r.echo.msgs_per_s(),
+                    e.micros(0.99) / r.echo.micros(0.99),
+                    e.server_cpu_us_per_msg(),
+                    e.server_sys_us_per_msg(),
+                );
+            }
+        }
     }
     println!();
     println!(
