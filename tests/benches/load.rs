@@ -3,12 +3,13 @@
 //!
 //! ```text
 //! cargo bench -p lluav-tests --bench load -- [--connections 1,10,100,1000]
-//!     [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers] [--lluavd-echo]
+//!     [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T]
+//!     [--echo-default-buffers] [--lluavd-echo]
 //! ```
 //!
 //! For each connection count C, C WebSocket connections each send M
-//! commands closed-loop (the next one only after the previous reply), first
-//! to the echo server, then to lluavd; every round trip's latency goes into
+//! commands closed-loop (the next one only after the previous reply), to
+//! the echo server and to lluavd in turn; every round trip's latency goes into
 //! an HDR histogram. Both servers get the same frame text (`state`, which
 //! lluavd answers after a login with the vehicle's full state) and run the
 //! same way: as a separate process on tokio's default multi-thread runtime
@@ -22,6 +23,15 @@
 //! Before the load, each server is started fresh and N idle connections
 //! are opened (logged in, for lluavd); the growth of the server's VmRSS
 //! divided by N is the memory per idle connection.
+//!
+//! Defaults: 100 000 commands per server, connection count and round
+//! (`--total`; M = total / C, at least 20); two rounds that alternate which
+//! server goes first, histograms merged over the rounds; 500 idle
+//! connections. The echo server and the client use lluavd's tungstenite
+//! buffer sizes (`--echo-default-buffers`: tungstenite's defaults for the
+//! echo server). `--lluavd-echo` adds `lluavd --echo`, lluavd's own
+//! connection code with its echo handler, which splits lluavd's cost into
+//! transport and protocol.
 //!
 //! The summary at the end is a Markdown table for BENCHMARKS.md.
 
