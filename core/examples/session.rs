@@ -7,8 +7,7 @@
 //! ```
 
 use lluav_core::{
-    Args, Auth, Backend, Command, CommandId, Context, Failure, Fields, Message, Outcome, Pose, Server,
-    Session,
+    Args, Auth, Backend, Command, CommandId, Context, Failure, Fields, Message, Outcome, Pose, Server, Step,
 };
 
 /// A toy vehicle: arms on takeoff, disarms on land, remembers its setpoint.
@@ -23,7 +22,7 @@ impl Backend for Toy {
         self.armed
     }
 
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         match (cmd.id(), cmd.args()) {
             (CommandId::Takeoff, _) => self.armed = true,
             (CommandId::Land | CommandId::Disarm, _) => self.armed = false,
@@ -43,7 +42,7 @@ impl Backend for Toy {
             }
             _ => return Err(Failure::unsupported("The toy vehicle does not do that")),
         }
-        Ok(())
+        Ok(Step::Done)
     }
 }
 
@@ -74,21 +73,22 @@ fn main() {
     };
     let auth = Auth::new(Some("secret")).expect("a valid password");
     let mut server = Server::new(Toy::default(), clock, auth);
-    let mut session = Session::new();
+    let mut session = server.open(Some(std::net::Ipv4Addr::LOCALHOST.into()));
     let mut out = [0u8; 2048];
     for frame in frames {
         println!("> {frame}");
-        match server.handle(&mut session, Message::Text(frame.as_bytes()), &mut out) {
-            Outcome::Reply(r) => println!("< {r}"),
-            Outcome::ReplyThenClose(r, code) => {
-                println!("< {r}");
-                println!("< (close {})", code.code());
-                break;
-            }
-            Outcome::Close(code) => {
-                println!("< (close {})", code.code());
-                break;
-            }
+        let outcome = server.handle(&mut session, Message::Text(frame.as_bytes()), &mut out);
+        if let Outcome::Pending(ticket, _) = outcome {
+            // The toy vehicle answers every command at once.
+            unreachable!("the toy vehicle never waits, yet left {ticket:?} pending");
+        }
+        if let Some(reply) = outcome.reply() {
+            println!("< {reply}");
+        }
+        if let Some(code) = outcome.close_code() {
+            println!("< (close {})", code.code());
+            break;
         }
     }
+    server.close(&session);
 }

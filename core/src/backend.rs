@@ -1,19 +1,46 @@
 //! The contract between the core and a vehicle.
 //!
 //! The core never does I/O: an adapter gives it a [`Backend`] (the vehicle:
-//! armed state, command execution) and a [`Clock`] (for `ts`).
+//! armed state, command execution) and a [`Clock`] (for `ts` and
+//! [`Context::now_ms`]). A backend that must wait for something outside —
+//! an autopilot's acknowledgement — answers [`Step::Pending`] and is asked
+//! to [`Backend::finish`] once the adapter has seen it become ready, so the
+//! core never blocks and other sessions are served meanwhile.
 
 use crate::command::Command;
 use crate::error::Failure;
 use crate::response::Fields;
+use crate::session::{Role, SessionId};
 
-/// What a backend may want to know about the session running a command.
+/// What a backend knows about the request it runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Context {
+    /// The request's time, in milliseconds since the Unix epoch, read once
+    /// from the adapter's [`Clock`]: backends never read a clock themselves.
+    pub now_ms: i64,
     /// Whether lock mode is on (e.g. for `state`'s `lock_mode`).
     pub lock_mode: bool,
-    /// Whether the session is admin.
-    pub admin: bool,
+    /// The session's role.
+    pub role: Role,
+    /// The session running the command.
+    pub session: SessionId,
+}
+
+/// A command the backend has started and will finish later.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Ticket(pub u32);
+
+/// How far a backend got with a command.
+#[must_use]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// Finished: the response fields are written.
+    Done,
+    /// Waiting for something outside; nothing is written yet. The adapter
+    /// waits until the backend says this ticket is ready (how is the
+    /// adapter's and backend's business) and calls
+    /// [`crate::Server::resume`], which calls [`Backend::finish`].
+    Pending(Ticket),
 }
 
 /// The vehicle behind the protocol.
@@ -28,9 +55,19 @@ pub trait Backend {
     fn armed(&self) -> bool;
 
     /// Carries out `cmd` and writes its response fields, under the
-    /// specification's field names, into `out`. On `Err`, whatever was
-    /// written is discarded and the failure is answered instead.
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure>;
+    /// specification's field names, into `out`, or starts it and answers
+    /// [`Step::Pending`]. On `Err`, whatever was written is discarded and
+    /// the failure is answered instead.
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure>;
+
+    /// Finishes a command that [`Backend::execute`] left pending, writing
+    /// its response fields like `execute` would. It may answer
+    /// [`Step::Pending`] again if the ticket is not ready after all. A
+    /// backend that never pends keeps the default, which reports a fault.
+    fn finish(&mut self, ticket: Ticket, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
+        let _ = (ticket, ctx, out);
+        Err(Failure::unhandled())
+    }
 
     /// Called by `passwd` before the new password takes effect, so that an
     /// adapter can persist it; an `Err` leaves the old password in place.
@@ -38,9 +75,16 @@ pub trait Backend {
         let _ = new;
         Ok(())
     }
+
+    /// Called when a session's connection has ended (e.g. to stop streaming
+    /// a setpoint that session set).
+    fn session_closed(&mut self, session: SessionId) {
+        let _ = session;
+    }
 }
 
-/// The source of `ts`: milliseconds since the Unix epoch.
+/// The source of `ts` and [`Context::now_ms`]: milliseconds since the Unix
+/// epoch.
 pub trait Clock {
     /// Now, in milliseconds since the Unix epoch.
     fn unix_ms(&self) -> i64;

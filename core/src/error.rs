@@ -104,6 +104,8 @@ pub const FAILURE_MSG_CAPACITY: usize = 96;
 pub struct Failure {
     ret: Ret,
     msg: heapless::String<FAILURE_MSG_CAPACITY>,
+    /// The message is in the response buffer ([`crate::Fields::fail`]).
+    written: bool,
 }
 
 impl Failure {
@@ -113,6 +115,7 @@ impl Failure {
         let mut f = Failure {
             ret,
             msg: heapless::String::new(),
+            written: false,
         };
         push_truncated(&mut f.msg, msg);
         f
@@ -123,7 +126,26 @@ impl Failure {
         let mut w = Truncating(heapless::String::new());
         // Truncating never reports an error.
         let _ = fmt::write(&mut w, args);
-        Failure { ret, msg: w.0 }
+        Failure {
+            ret,
+            msg: w.0,
+            written: false,
+        }
+    }
+
+    /// A failure whose message [`crate::Fields::fail`] wrote into the
+    /// response buffer.
+    pub(crate) fn written(ret: Ret) -> Self {
+        Failure {
+            ret,
+            msg: heapless::String::new(),
+            written: true,
+        }
+    }
+
+    /// Whether the message is in the response buffer rather than here.
+    pub(crate) fn is_written(&self) -> bool {
+        self.written
     }
 
     /// ret -1: the command failed; `msg` says why.
@@ -151,7 +173,8 @@ impl Failure {
         self.ret
     }
 
-    /// The message.
+    /// The message (empty when [`crate::Fields::fail`] wrote it into the
+    /// response buffer instead).
     pub fn msg(&self) -> &str {
         &self.msg
     }
@@ -186,6 +209,8 @@ pub mod messages {
     pub const LOGIN_FIRST: &str = "Login first!";
     /// Wrong password.
     pub const WRONG_PASSWORD: &str = "Wrong password!";
+    /// The client's address is locked out after too many wrong passwords.
+    pub const THROTTLED: &str = "Too many wrong passwords, retry later";
     /// Armed gate.
     pub const ARMED: &str = "Not allow when vehicle is ARMED!";
     /// Lock gate.

@@ -12,22 +12,23 @@
 //! - [`gate`] and [`session`]: login, admin, armed and lock gates;
 //! - [`response`]: JSON responses in caller-provided fixed buffers;
 //! - [`Backend`] and [`Clock`]: what an adapter supplies;
+//! - [`throttle`]: password guessing limited per client address;
 //! - [`Server::handle`]: the one entry point an adapter calls per message.
 //!
 //! ```
-//! use lluav_core::{Auth, Backend, Command, Context, Failure, Fields, Message, Outcome, Server, Session};
+//! use lluav_core::{Auth, Backend, Command, Context, Failure, Fields, Message, Outcome, Server, Step};
 //!
 //! struct Parked;
 //! impl Backend for Parked {
 //!     fn armed(&self) -> bool { false }
-//!     fn execute(&mut self, _: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+//!     fn execute(&mut self, _: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
 //!         out.str("note", "parked");
-//!         Ok(())
+//!         Ok(Step::Done)
 //!     }
 //! }
 //!
 //! let mut server = Server::new(Parked, || 1_714_233_600_000, Auth::new(Some("secret")).unwrap());
-//! let mut session = Session::new();
+//! let mut session = server.open(Some([192, 168, 1, 20].into()));
 //! let mut out = [0u8; 512];
 //! assert_eq!(
 //!     server.handle(&mut session, Message::Text(b"state"), &mut out),
@@ -37,6 +38,12 @@
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
+#![deny(
+    clippy::indexing_slicing,
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic
+)]
 
 pub mod backend;
 pub mod command;
@@ -48,12 +55,13 @@ pub mod response;
 pub mod server;
 pub mod session;
 pub mod table;
+pub mod throttle;
 
-pub use backend::{Backend, Clock, Context};
+pub use backend::{Backend, Clock, Context, Step, Ticket};
 pub use command::{Args, Command, LandPoint, MAX_HEIGHTS, MAX_WAYPOINT_IDS, Payload, Point, Pose};
 pub use error::{ArgError, Failure, ParseError, Refusal, Ret};
 pub use parse::parse;
 pub use response::{Fields, Items, MIN_RESPONSE_CAPACITY};
 pub use server::{CloseCode, Message, Outcome, Server};
-pub use session::{Auth, AuthError, LoginOutcome, Session};
-pub use table::{CommandId, Flags, Grammar, Spec, TABLE};
+pub use session::{Auth, AuthError, LoginOutcome, Role, Session, SessionId};
+pub use table::{CommandId, Flags, Grammar, Section, Spec, TABLE};

@@ -6,9 +6,11 @@
 //! truncated or invalid object. Overflow is sticky: once a write does not
 //! fit, every later write is a no-op and the response is replaced.
 
+use core::fmt;
+
 use serde::Serialize;
 
-use crate::error::Ret;
+use crate::error::{Failure, Ret};
 
 /// Room kept at the start of the buffer for `{"ret":..,"cmd":..,"ts":..`,
 /// which is written after the backend's fields (ret and ts are only known
@@ -26,7 +28,15 @@ struct Sink<'b> {
     buf: &'b mut [u8],
     len: usize,
     overflow: bool,
+    /// Where the response's members start (for [`Fields::fail`]).
+    origin: usize,
+    /// The end of a failure message written by [`Fields::fail`]; once set,
+    /// nothing else is written.
+    failed_at: Option<usize>,
 }
+
+/// What a nested writer hands back to its parent.
+type SinkState = (usize, bool, Option<usize>);
 
 impl Sink<'_> {
     fn bytes(&mut self, b: &[u8]) {
@@ -144,13 +154,70 @@ impl Sink<'_> {
             buf: &mut *self.buf,
             len: self.len,
             overflow: self.overflow,
+            origin: self.origin,
+            failed_at: self.failed_at,
         }
     }
 
+    fn state(&self) -> SinkState {
+        (self.len, self.overflow, self.failed_at)
+    }
+
     /// Takes over what a nested writer wrote.
-    fn resume(&mut self, (len, overflow): (usize, bool)) {
+    fn resume(&mut self, (len, overflow, failed_at): SinkState) {
         self.len = len;
         self.overflow = overflow;
+        self.failed_at = failed_at;
+    }
+
+    /// Replaces everything written since `origin` with `,"msg":"<text>"`,
+    /// the text escaped and cut at a character boundary where it would not
+    /// fit (leaving room for the closing `}`), then refuses further writes.
+    fn failure(&mut self, text: fmt::Arguments<'_>) {
+        self.len = self.origin;
+        self.overflow = false;
+        self.bytes(br#","msg":""#);
+        // Room for the closing quote and brace.
+        let limit = self.buf.len().saturating_sub(2);
+        let mut w = Bounded {
+            sink: self,
+            limit,
+            full: false,
+        };
+        // `Bounded` stops quietly when full; an error can only mean that.
+        let _ = fmt::write(&mut w, text);
+        self.byte(b'"');
+        if !self.overflow {
+            self.failed_at = Some(self.len);
+        }
+        self.overflow = true;
+    }
+}
+
+/// Escapes text into a [`Sink`] up to `limit`, whole characters (and whole
+/// escapes) only.
+struct Bounded<'s, 'b> {
+    sink: &'s mut Sink<'b>,
+    limit: usize,
+    full: bool,
+}
+
+impl fmt::Write for Bounded<'_, '_> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        if self.full {
+            return Err(fmt::Error);
+        }
+        let mut one = [0u8; 4];
+        for c in s.chars() {
+            let before = (self.sink.len, self.sink.overflow);
+            self.sink.escaped(c.encode_utf8(&mut one));
+            if self.sink.overflow || self.sink.len > self.limit {
+                (self.sink.len, self.sink.overflow) = before;
+                self.full = true;
+                return Err(fmt::Error);
+            }
+        }
+        Ok(())
     }
 }
 
@@ -283,7 +350,7 @@ macro_rules! value_writers {
                 self.sink.byte(b'{');
                 let mut inner = Fields { sink: self.sink.reborrow(), first: true };
                 f(&mut inner);
-                let state = (inner.sink.len, inner.sink.overflow);
+                let state = inner.sink.state();
                 self.sink.resume(state);
                 self.sink.byte(b'}');
                 self
@@ -294,7 +361,7 @@ macro_rules! value_writers {
                 self.sink.byte(b'[');
                 let mut inner = Items { sink: self.sink.reborrow(), first: true };
                 f(&mut inner);
-                let state = (inner.sink.len, inner.sink.overflow);
+                let state = inner.sink.state();
                 self.sink.resume(state);
                 self.sink.byte(b']');
                 self
@@ -315,9 +382,27 @@ impl<'b> Fields<'b> {
                 buf,
                 len: start,
                 overflow: false,
+                origin: start,
+                failed_at: None,
             },
             first: false,
         }
+    }
+
+    /// Fails the command with `ret` and a message written whole into the
+    /// response buffer (cut at a character boundary only if the buffer
+    /// cannot hold it), discarding every field written so far; return the
+    /// result from [`crate::Backend::execute`]. Unlike [`Failure::new`],
+    /// the message is not limited to
+    /// [`crate::error::FAILURE_MSG_CAPACITY`] bytes.
+    pub fn fail(&mut self, ret: Ret, msg: fmt::Arguments<'_>) -> Failure {
+        self.sink.failure(msg);
+        Failure::written(ret)
+    }
+
+    /// The end of the failure message [`Fields::fail`] wrote, if it did.
+    pub(crate) fn failure_end(&self) -> Option<usize> {
+        self.sink.failed_at
     }
 
     fn member(&mut self, key: &str) {
@@ -354,6 +439,8 @@ fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
         buf,
         len: 0,
         overflow: false,
+        origin: 0,
+        failed_at: None,
     };
     s.bytes(br#"{"ret":"#);
     s.int(i64::from(ret.code()));
@@ -365,12 +452,13 @@ fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
 }
 
 /// Completes a response whose members were written by [`Fields::after_head`]
-/// from [`HEAD_RESERVE`] to `body_end`: writes the head, moves the members
-/// behind it and closes the object. Returns the response length, or `None`
-/// if it does not fit.
-pub(crate) fn finish_ok(buf: &mut [u8], cmd: u8, ts: i64, body_end: usize) -> Option<usize> {
+/// from [`HEAD_RESERVE`] to `body_end` (the command's fields, or the `msg`
+/// of [`Fields::fail`]): writes the head, moves the members behind it and
+/// closes the object. Returns the response length, or `None` if it does not
+/// fit.
+pub(crate) fn finish(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, body_end: usize) -> Option<usize> {
     let mut h = [0u8; HEAD_RESERVE];
-    let head_len = head(&mut h, Ret::Ok, cmd, ts)?;
+    let head_len = head(&mut h, ret, cmd, ts)?;
     let body = HEAD_RESERVE..body_end;
     let body_len = body.len();
     // The closing brace needs one byte after the body.
@@ -390,6 +478,8 @@ pub(crate) fn write_error(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, parts: &[&
         buf,
         len,
         overflow: false,
+        origin: len,
+        failed_at: None,
     };
     s.bytes(br#","msg":"#);
     s.string(parts);

@@ -2,28 +2,50 @@
 //! bytes (and possibly a close code) out.
 //!
 //! [`Server::handle`] runs the whole protocol: DESIGN.md's WebSocket close
-//! policy, the gates in order, argument parsing, the session commands the
-//! core owns (`login`, `help`, `admin_lock`, `admin_unlock`, `passwd`), the
-//! backend, and the response. Adapters own sockets and framing only.
+//! policy ([`Message::text`]), the gates in order, argument parsing, the
+//! session commands the core owns (`login`, `help`, `admin_lock`,
+//! `admin_unlock`, `passwd`), the backend, and the response. Adapters own
+//! sockets and framing only: they open a [`Session`] per connection with
+//! [`Server::open`], hand every message to [`Server::handle`], carry out the
+//! [`Outcome`] (calling [`Server::resume`] once a pending backend is ready)
+//! and report the end of the connection with [`Server::close`].
 
-use crate::backend::{Backend, Clock, Context};
+use core::net::IpAddr;
+
+use crate::backend::{Backend, Clock, Context, Step, Ticket};
 use crate::command::{Args, Command};
 use crate::error::{ArgError, Failure, ParseError, Refusal, Ret, cut_at_char_boundary, messages};
 use crate::gate;
 use crate::parse::{self, Split};
 use crate::response::{self, Fields, HEAD_RESERVE};
-use crate::session::{Auth, LoginOutcome, Session};
+use crate::session::{Auth, LoginOutcome, Session, SessionId};
 use crate::table::{CommandId, TABLE, lookup};
 
 /// A complete WebSocket message, as the adapter's framing layer saw it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Message<'a> {
-    /// A text message (reassembled if it was fragmented); UTF-8 is checked here.
+    /// A text message (reassembled if it was fragmented); UTF-8 is checked
+    /// by [`Message::text`].
     Text(&'a [u8]),
     /// A binary message.
     Binary(&'a [u8]),
     /// A message longer than the adapter's frame limit.
     Oversized,
+}
+
+impl<'a> Message<'a> {
+    /// The text of a message the protocol accepts, or the code to close
+    /// the connection with (DESIGN.md, "WebSocket behaviour"): a binary
+    /// message 1003, text that is not UTF-8 1007, a message over the limit
+    /// 1009. Both adapters' echo services use it too, so that the policy
+    /// lives here only.
+    pub fn text(self) -> Result<&'a str, CloseCode> {
+        match self {
+            Message::Text(bytes) => core::str::from_utf8(bytes).map_err(|_| CloseCode::InvalidPayload),
+            Message::Binary(_) => Err(CloseCode::Unsupported),
+            Message::Oversized => Err(CloseCode::TooBig),
+        }
+    }
 }
 
 /// WebSocket close codes the protocol uses (RFC 6455, section 7.4.1).
@@ -65,6 +87,29 @@ pub enum Outcome<'o> {
     ReplyThenClose(&'o str, CloseCode),
     /// Close with this code; nothing to send first.
     Close(CloseCode),
+    /// The backend is waiting for something outside: once it says this
+    /// ticket is ready, call [`Server::resume`] with the buffer handed back
+    /// here. Nothing is sent meanwhile, and the session's later messages
+    /// wait their turn.
+    Pending(Ticket, &'o mut [u8]),
+}
+
+impl<'o> Outcome<'o> {
+    /// The text to send, if any.
+    pub fn reply(&self) -> Option<&'o str> {
+        match *self {
+            Outcome::Reply(text) | Outcome::ReplyThenClose(text, _) => Some(text),
+            Outcome::Close(_) | Outcome::Pending(..) => None,
+        }
+    }
+
+    /// The code to close the connection with once the reply is sent, if any.
+    pub fn close_code(&self) -> Option<CloseCode> {
+        match *self {
+            Outcome::ReplyThenClose(_, code) | Outcome::Close(code) => Some(code),
+            Outcome::Reply(_) | Outcome::Pending(..) => None,
+        }
+    }
 }
 
 /// The protocol for one vehicle: its backend, clock and login state. Every
@@ -74,6 +119,8 @@ pub struct Server<B, C> {
     backend: B,
     clock: C,
     auth: Auth,
+    /// The last [`SessionId`] handed out.
+    last_session: u32,
 }
 
 /// An answer before it is written.
@@ -82,8 +129,11 @@ enum Answer<'a> {
     Done(u8, usize),
     /// An error: ret, cmd and the message in parts.
     Error(Ret, u8, [&'a str; 2]),
-    /// An error whose message the backend owns.
-    Failed(u8, Failure),
+    /// An error whose message the backend owns, and where the message ends
+    /// in the buffer if [`Fields::fail`] wrote it there.
+    Failed(u8, Failure, Option<usize>),
+    /// The backend is waiting for something outside.
+    Pending(CommandId, Ticket),
 }
 
 impl<'a> Answer<'a> {
@@ -110,12 +160,28 @@ impl<'a> Answer<'a> {
             ),
         }
     }
+
+    /// What a command that ran came to, given the fields it wrote.
+    fn settled(id: CommandId, result: Result<Step, Failure>, fields: &Fields<'_>) -> Self {
+        let cmd = u8::from(id);
+        match (result, fields.end()) {
+            (Err(f), _) => Answer::Failed(cmd, f, fields.failure_end()),
+            (Ok(Step::Pending(ticket)), _) => Answer::Pending(id, ticket),
+            (Ok(Step::Done), Some(end)) => Answer::Done(cmd, end),
+            (Ok(Step::Done), None) => Answer::Error(Ret::Failed, cmd, [messages::TOO_LARGE, ""]),
+        }
+    }
 }
 
 impl<B: Backend, C: Clock> Server<B, C> {
     /// A server for one vehicle.
     pub fn new(backend: B, clock: C, auth: Auth) -> Self {
-        Server { backend, clock, auth }
+        Server {
+            backend,
+            clock,
+            auth,
+            last_session: 0,
+        }
     }
 
     /// The backend.
@@ -138,40 +204,63 @@ impl<B: Backend, C: Clock> Server<B, C> {
         &mut self.auth
     }
 
+    /// A session for a new connection from `peer` (its IP address, which
+    /// login throttling counts wrong passwords by; `None` if the transport
+    /// has none).
+    pub fn open(&mut self, peer: Option<IpAddr>) -> Session {
+        self.last_session = self.last_session.wrapping_add(1).max(1);
+        Session::with(SessionId(self.last_session), peer)
+    }
+
+    /// Reports that `session`'s connection has ended.
+    pub fn close(&mut self, session: &Session) {
+        self.backend.session_closed(session.id());
+    }
+
     /// Handles one WebSocket message of `session`, writing the response
-    /// into `out`. Every text message gets exactly one JSON object; `out`
-    /// should hold at least [`crate::MIN_RESPONSE_CAPACITY`] bytes, or even
-    /// an error cannot be written and the outcome is a close with 1011.
+    /// into `out`. Every text message gets exactly one JSON object (now, or
+    /// through [`Server::resume`] after [`Outcome::Pending`]); `out` should
+    /// hold at least [`crate::MIN_RESPONSE_CAPACITY`] bytes, or even an
+    /// error cannot be written and the outcome is a close with 1011.
     pub fn handle<'o>(
         &mut self,
         session: &mut Session,
         message: Message<'_>,
         out: &'o mut [u8],
     ) -> Outcome<'o> {
-        let text = match message {
-            Message::Text(bytes) => match core::str::from_utf8(bytes) {
-                Ok(text) => text,
-                Err(_) => return Outcome::Close(CloseCode::InvalidPayload),
-            },
-            Message::Binary(_) => return Outcome::Close(CloseCode::Unsupported),
-            Message::Oversized => return Outcome::Close(CloseCode::TooBig),
+        let text = match message.text() {
+            Ok(text) => text,
+            Err(code) => return Outcome::Close(code),
         };
+        let now = self.clock.unix_ms();
         let mut close = None;
-        let answer = self.answer(session, text, out, &mut close);
-        let ts = self.clock.unix_ms();
-        let len = match answer {
-            Answer::Done(cmd, end) => response::finish_ok(out, cmd, ts, end)
-                .or_else(|| response::write_error(out, Ret::Failed, cmd, ts, &[messages::TOO_LARGE])),
-            Answer::Error(ret, cmd, parts) => response::write_error(out, ret, cmd, ts, &parts),
-            Answer::Failed(cmd, f) => response::write_error(out, f.ret(), cmd, ts, &[f.msg()]),
+        let answer = self.answer(session, text, now, out, &mut close);
+        write(session, answer, now, close, out)
+    }
+
+    /// Answers the command `session` was waiting for, once the backend said
+    /// its ticket is ready. The answer may be [`Outcome::Pending`] again.
+    /// A session that waits for nothing is closed with 1011: the adapter
+    /// broke the contract.
+    pub fn resume<'o>(&mut self, session: &mut Session, out: &'o mut [u8]) -> Outcome<'o> {
+        let Some((ticket, id)) = session.pending() else {
+            return Outcome::Close(CloseCode::InternalError);
         };
-        let reply = len
-            .and_then(|n| out.get(..n))
-            .and_then(|b| core::str::from_utf8(b).ok());
-        match (reply, close) {
-            (Some(r), None) => Outcome::Reply(r),
-            (Some(r), Some(code)) => Outcome::ReplyThenClose(r, code),
-            (None, _) => Outcome::Close(CloseCode::InternalError),
+        session.set_pending(None);
+        let now = self.clock.unix_ms();
+        let ctx = self.context(session, now);
+        let mut fields = Fields::after_head(out, HEAD_RESERVE);
+        let result = self.backend.finish(ticket, &ctx, &mut fields);
+        let answer = Answer::settled(id, result, &fields);
+        write(session, answer, now, None, out)
+    }
+
+    fn context(&self, session: &Session, now_ms: i64) -> Context {
+        Context {
+            now_ms,
+            lock_mode: self.auth.lock_mode(),
+            role: session.role(),
+            session: session.id(),
         }
     }
 
@@ -179,6 +268,7 @@ impl<B: Backend, C: Clock> Server<B, C> {
         &mut self,
         session: &mut Session,
         text: &'a str,
+        now: i64,
         out: &mut [u8],
         close: &mut Option<CloseCode>,
     ) -> Answer<'a> {
@@ -205,11 +295,8 @@ impl<B: Backend, C: Clock> Server<B, C> {
             Err(e) => return Answer::invalid(e),
         };
         let mut fields = Fields::after_head(out, HEAD_RESERVE);
-        match (self.run(session, &command, &mut fields, close), fields.end()) {
-            (Err(f), _) => Answer::Failed(cmd, f),
-            (Ok(()), Some(end)) => Answer::Done(cmd, end),
-            (Ok(()), None) => Answer::Error(Ret::Failed, cmd, [messages::TOO_LARGE, ""]),
-        }
+        let result = self.run(session, &command, now, &mut fields, close);
+        Answer::settled(spec.id, result, &fields)
     }
 
     /// Runs a command that passed every gate.
@@ -217,52 +304,96 @@ impl<B: Backend, C: Clock> Server<B, C> {
         &mut self,
         session: &mut Session,
         command: &Command<'_>,
+        now: i64,
         out: &mut Fields<'_>,
         close: &mut Option<CloseCode>,
-    ) -> Result<(), Failure> {
+    ) -> Result<Step, Failure> {
         match (command.id(), command.args()) {
-            (CommandId::Login, Args::Secret(attempt)) => match self.auth.login(session, attempt) {
-                LoginOutcome::Wrong { close: shut } => {
-                    if shut {
-                        *close = Some(CloseCode::Policy);
-                    }
-                    Err(Failure::failed(messages::WRONG_PASSWORD))
-                }
-                _ => {
-                    out.bool("logged_in", session.logged_in())
-                        .bool("admin", session.admin());
-                    Ok(())
-                }
-            },
+            (CommandId::Login, Args::Secret(attempt)) => self.login(session, attempt, now, out, close)?,
             (CommandId::Help, _) => {
                 out.array("commands", |a| {
                     for spec in &TABLE {
                         a.str(spec.name);
                     }
                 });
-                Ok(())
             }
             (CommandId::AdminLock | CommandId::AdminUnlock, _) => {
                 self.auth.set_lock_mode(command.id() == CommandId::AdminLock);
                 out.bool("lock_mode", self.auth.lock_mode());
-                Ok(())
             }
-            (CommandId::Passwd, Args::NewPassword(new)) => {
-                let bad = |_| invalid_args(command.id(), ArgError::BadPassword);
-                self.auth.check_password(new).map_err(bad)?;
-                self.backend.password_changed(new)?;
-                self.auth.set_password(new).map_err(bad)?;
-                self.auth.admit(session);
-                Ok(())
-            }
+            (CommandId::Passwd, Args::NewPassword(new)) => self.passwd(session, new)?,
             _ => {
-                let ctx = Context {
-                    lock_mode: self.auth.lock_mode(),
-                    admin: session.admin(),
-                };
-                self.backend.execute(command, &ctx, out)
+                let ctx = self.context(session, now);
+                return self.backend.execute(command, &ctx, out);
             }
         }
+        Ok(Step::Done)
+    }
+
+    fn login(
+        &mut self,
+        session: &mut Session,
+        attempt: &str,
+        now: i64,
+        out: &mut Fields<'_>,
+        close: &mut Option<CloseCode>,
+    ) -> Result<(), Failure> {
+        match self.auth.login(session, attempt, now) {
+            LoginOutcome::Throttled => return Err(Failure::failed(messages::THROTTLED)),
+            LoginOutcome::Wrong { close: shut } => {
+                if shut {
+                    *close = Some(CloseCode::Policy);
+                }
+                return Err(Failure::failed(messages::WRONG_PASSWORD));
+            }
+            LoginOutcome::User | LoginOutcome::Admin | LoginOutcome::LoggedOut => {}
+        }
+        out.bool("logged_in", session.logged_in())
+            .bool("admin", session.admin());
+        Ok(())
+    }
+
+    fn passwd(&mut self, session: &mut Session, new: &str) -> Result<(), Failure> {
+        let bad = |_| invalid_args(CommandId::Passwd, ArgError::BadPassword);
+        self.auth.check_password(new).map_err(bad)?;
+        self.backend.password_changed(new)?;
+        self.auth.set_password(new).map_err(bad)?;
+        self.auth.admit(session);
+        Ok(())
+    }
+}
+
+/// Writes `answer` into `out` (or records a pending one in `session`).
+fn write<'o>(
+    session: &mut Session,
+    answer: Answer<'_>,
+    ts: i64,
+    close: Option<CloseCode>,
+    out: &'o mut [u8],
+) -> Outcome<'o> {
+    let len = match answer {
+        Answer::Done(cmd, end) => response::finish(out, Ret::Ok, cmd, ts, end)
+            .or_else(|| response::write_error(out, Ret::Failed, cmd, ts, &[messages::TOO_LARGE])),
+        Answer::Error(ret, cmd, parts) => response::write_error(out, ret, cmd, ts, &parts),
+        Answer::Failed(cmd, f, end) => match (f.is_written(), end) {
+            (false, _) => response::write_error(out, f.ret(), cmd, ts, &[f.msg()]),
+            (true, Some(end)) => response::finish(out, f.ret(), cmd, ts, end),
+            // Written into some other buffer: a backend bug, not the
+            // client's; say so rather than send a message that isn't there.
+            (true, None) => response::write_error(out, Ret::Unhandled, cmd, ts, &[messages::UNHANDLED]),
+        },
+        Answer::Pending(id, ticket) => {
+            session.set_pending(Some((ticket, id)));
+            return Outcome::Pending(ticket, out);
+        }
+    };
+    let reply = len
+        .and_then(|n| out.get(..n))
+        .and_then(|b| core::str::from_utf8(b).ok());
+    match (reply, close) {
+        (Some(r), None) => Outcome::Reply(r),
+        (Some(r), Some(code)) => Outcome::ReplyThenClose(r, code),
+        (None, _) => Outcome::Close(CloseCode::InternalError),
     }
 }
 

@@ -1,51 +1,108 @@
 //! Sessions and the vehicle-wide login state.
 //!
-//! A [`Session`] is one connection: logged in or not, admin or not, and how
-//! many wrong passwords it sent in a row. [`Auth`] is shared by every
-//! session of a vehicle: the password, the two special login values and
-//! lock mode. Passwords are compared in constant time.
+//! A [`Session`] is one connection: its [`Role`], the address it came from,
+//! how many wrong passwords it sent in a row, and the command it waits for,
+//! if any. [`Auth`] is shared by every session of a vehicle: the password,
+//! the two special login values, lock mode and the per-address [`Throttle`].
+//! Passwords are compared in constant time.
 
+use core::net::IpAddr;
+
+use crate::backend::Ticket;
 use crate::error::ArgError;
 use crate::parse::MAX_PASSWORD_LEN;
+use crate::table::CommandId;
+pub use crate::throttle::MAX_WRONG_PASSWORDS;
+use crate::throttle::Throttle;
 
 /// The login value that grants admin, unless configured otherwise.
 pub const DEFAULT_ADMIN_PASSWORD: &str = "1025";
 /// The login value that logs the session out, unless configured otherwise.
 pub const DEFAULT_LOGOUT_PASSWORD: &str = "0315";
-/// Wrong passwords in a row after which the session is closed (1008).
-pub const MAX_WRONG_PASSWORDS: u8 = 5;
+
+/// What a session may do.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Role {
+    /// Not logged in (on a vehicle without a password, it may still run
+    /// every command that is not admin-only).
+    #[default]
+    Anonymous,
+    /// Logged in with the vehicle's password.
+    User,
+    /// Logged in with the admin value.
+    Admin,
+}
+
+/// Which session a backend is serving, unique among the open sessions of a
+/// [`crate::Server`] (handed out by [`crate::Server::open`]; 0 for sessions
+/// made with [`Session::new`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SessionId(pub u32);
 
 /// One connection's login state.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Session {
-    logged_in: bool,
-    admin: bool,
+    id: SessionId,
+    peer: Option<IpAddr>,
+    role: Role,
     wrong_passwords: u8,
+    pending: Option<(Ticket, CommandId)>,
 }
 
 impl Session {
-    /// A new connection: not logged in, not admin.
+    /// A session with no peer address (in-process use and tests; adapters
+    /// use [`crate::Server::open`] so that login throttling sees the peer).
     pub const fn new() -> Self {
+        Session::with(SessionId(0), None)
+    }
+
+    pub(crate) const fn with(id: SessionId, peer: Option<IpAddr>) -> Self {
         Session {
-            logged_in: false,
-            admin: false,
+            id,
+            peer,
+            role: Role::Anonymous,
             wrong_passwords: 0,
+            pending: None,
         }
+    }
+
+    /// This session's id.
+    pub fn id(&self) -> SessionId {
+        self.id
+    }
+
+    /// The client's address, as the adapter gave it.
+    pub fn peer(&self) -> Option<IpAddr> {
+        self.peer
+    }
+
+    /// What the session may do.
+    pub fn role(&self) -> Role {
+        self.role
     }
 
     /// Whether the session has logged in with a valid password.
     pub fn logged_in(&self) -> bool {
-        self.logged_in
+        self.role != Role::Anonymous
     }
 
     /// Whether the session has admin rights.
     pub fn admin(&self) -> bool {
-        self.admin
+        self.role == Role::Admin
     }
 
     /// Wrong passwords sent in a row.
     pub fn wrong_passwords(&self) -> u8 {
         self.wrong_passwords
+    }
+
+    /// The command the session waits for the backend to finish, if any.
+    pub fn pending(&self) -> Option<(Ticket, CommandId)> {
+        self.pending
+    }
+
+    pub(crate) fn set_pending(&mut self, pending: Option<(Ticket, CommandId)>) {
+        self.pending = pending;
     }
 }
 
@@ -107,6 +164,8 @@ pub enum LoginOutcome {
         /// Whether the connection must now be closed with 1008.
         close: bool,
     },
+    /// The session's address is locked out: the attempt was not checked.
+    Throttled,
 }
 
 /// Vehicle-wide login state, shared by all sessions.
@@ -116,6 +175,7 @@ pub struct Auth {
     admin: Secret,
     logout: Secret,
     lock_mode: bool,
+    throttle: Throttle,
 }
 
 /// Why an [`Auth`] could not be configured.
@@ -143,6 +203,7 @@ impl Auth {
             admin: secret(admin)?,
             logout: secret(logout)?,
             lock_mode: false,
+            throttle: Throttle::default(),
         };
         if auth.admin == auth.logout {
             return Err(AuthError::Ambiguous);
@@ -196,34 +257,63 @@ impl Auth {
         Ok(())
     }
 
-    /// Checks a login attempt and updates the session. Every secret is
-    /// compared, in constant time, whatever the attempt.
-    pub fn login(&self, session: &mut Session, attempt: &str) -> LoginOutcome {
+    /// Sets how long an address is locked out after
+    /// [`MAX_WRONG_PASSWORDS`] wrong passwords in a row: `base_ms` the first
+    /// time, doubling with each further lockout up to `max_ms`.
+    pub fn with_lockout(mut self, base_ms: u32, max_ms: u32) -> Self {
+        self.throttle = Throttle::new(base_ms, max_ms);
+        self
+    }
+
+    /// Checks a login attempt at `now_ms` and updates the session and the
+    /// per-address record. Every secret is compared, in constant time,
+    /// whatever the attempt; nothing is compared while the session's
+    /// address is locked out.
+    pub fn login(&mut self, session: &mut Session, attempt: &str, now_ms: i64) -> LoginOutcome {
+        if session
+            .peer
+            .is_some_and(|peer| self.throttle.locked(peer, now_ms))
+        {
+            return LoginOutcome::Throttled;
+        }
         let a = attempt.as_bytes();
         let is_admin = self.admin.matches(a);
         let is_logout = self.logout.matches(a);
         let is_user = self.password.as_ref().is_some_and(|p| p.matches(a));
-        let outcome = if is_admin {
-            LoginOutcome::Admin
+        let role = if is_admin {
+            Role::Admin
         } else if is_logout {
-            LoginOutcome::LoggedOut
+            // Public, so it must not buy more guesses: the counts stay.
+            session.role = Role::Anonymous;
+            return LoginOutcome::LoggedOut;
         } else if is_user {
-            LoginOutcome::User
+            Role::User
         } else {
             session.wrong_passwords = session.wrong_passwords.saturating_add(1);
+            if let Some(peer) = session.peer {
+                self.throttle.wrong(peer, now_ms);
+            }
             return LoginOutcome::Wrong {
                 close: session.wrong_passwords >= MAX_WRONG_PASSWORDS,
             };
         };
         session.wrong_passwords = 0;
-        session.logged_in = outcome != LoginOutcome::LoggedOut;
-        session.admin = outcome == LoginOutcome::Admin;
-        outcome
+        if let Some(peer) = session.peer {
+            self.throttle.granted(peer);
+        }
+        session.role = role;
+        if role == Role::Admin {
+            LoginOutcome::Admin
+        } else {
+            LoginOutcome::User
+        }
     }
 
-    /// Marks a session logged in as a user (the session that set the
-    /// password with `passwd` knows it).
+    /// Marks a session logged in as a user, unless it is admin already (the
+    /// session that set the password with `passwd` knows it).
     pub(crate) fn admit(&self, session: &mut Session) {
-        session.logged_in = true;
+        if session.role == Role::Anonymous {
+            session.role = Role::User;
+        }
     }
 }

@@ -60,6 +60,37 @@ pub enum Grammar {
     Ai1Mission,
 }
 
+/// The heading a command stands under in the specification's Command
+/// Reference (`login` under "Authentication"). Backends route commands to
+/// the subsystem that owns them by section.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Section {
+    /// Authentication: `login`.
+    Authentication,
+    /// State & Telemetry.
+    State,
+    /// Flight Control.
+    Flight,
+    /// Mission Management.
+    Mission,
+    /// Map Management.
+    Map,
+    /// Camera & Recording.
+    Camera,
+    /// LED Control.
+    Led,
+    /// Parameter Management.
+    Param,
+    /// Apron (Charging Pad).
+    Apron,
+    /// System Management.
+    System,
+    /// Lidar & Perception.
+    Lidar,
+    /// Other.
+    Other,
+}
+
 /// Gate flags of one command (DESIGN.md, "Sessions and gates").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Flags {
@@ -87,6 +118,8 @@ pub struct Spec {
     pub id: CommandId,
     /// The name on the wire.
     pub name: &'static str,
+    /// Where the specification lists it.
+    pub section: Section,
     /// How the arguments are written.
     pub grammar: Grammar,
     /// Gate flags.
@@ -106,147 +139,176 @@ macro_rules! flags {
 }
 
 macro_rules! command_table {
-    ($( $id:literal $variant:ident $name:literal $grammar:ident [$($flag:ident)*] $usage:literal $summary:literal; )*) => {
+    ($( $section:ident {
+        $( $id:literal $variant:ident $name:literal $grammar:ident [$($flag:ident)*] $usage:literal $summary:literal; )*
+    } )*) => {
         /// A known command. The discriminant is the id sent as `cmd`.
         #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
         #[repr(u8)]
         pub enum CommandId {
-            $( #[doc = $summary] $variant = $id, )*
+            $( $( #[doc = $summary] $variant = $id, )* )*
         }
 
         /// The command table, in id order: `TABLE[id - 1]` describes `id`.
-        pub static TABLE: [Spec; [$($id),*].len()] = [
-            $( Spec {
+        pub static TABLE: [Spec; [$( $($id,)* )*].len()] = [
+            $( $( Spec {
                 id: CommandId::$variant,
                 name: $name,
+                section: Section::$section,
                 grammar: Grammar::$grammar,
                 flags: flags!($($flag)*),
                 usage: $usage,
                 summary: $summary,
-            }, )*
+            }, )* )*
         ];
+
+        impl CommandId {
+            /// The table row of this command.
+            pub fn spec(self) -> &'static Spec {
+                // Constant indices: the const check below proves each row
+                // sits at `id - 1`, so none of these can be out of bounds.
+                match self {
+                    $( $( CommandId::$variant => &TABLE[$id - 1], )* )*
+                }
+            }
+        }
     };
 }
 
 command_table! {
-    1 Login "login" Secret [] "login <password>" "Log this session in (1025: admin, 0315: log out).";
-    // State & Telemetry
-    2 State "state" None [] "state" "Full FSM state.";
-    3 Param "param" None [] "param" "All parameters.";
-    4 GetParam "get_param" ParamName [] "get_param name" "One parameter.";
-    5 Ver "ver" None [] "ver" "Version information.";
-    6 Sysinfo "sysinfo" None [] "sysinfo" "Uptime, RAM and loads.";
-    7 Diskusage "diskusage" None [] "diskusage" "Free disk space.";
-    8 Statics "statics" None [] "statics" "Communication and recording statistics.";
-    9 Machineid "machineid" None [] "machineid" "Unique hardware id.";
-    10 Hud1 "hud1" None [] "hud1" "Keyframes, ENU position and extras.";
-    11 Lidarpose "lidarpose" None [] "lidarpose" "Lidar pose.";
-    12 ApronState "apron_state" None [] "apron_state" "Charging pad status.";
-    13 MavlinkMsgs "mavlink_msgs" None [] "mavlink_msgs" "MAVLink message counts.";
-    14 GetSubmapInfo "get_submap_info" None [] "get_submap_info" "Map id and keyframe count.";
-    15 ShowSp "show_sp" None [] "show_sp" "Current setpoint.";
-    16 ShowApguid2 "show_apguid2" None [] "show_apguid2" "Autopilot guid2.";
-    17 Showmsg "showmsg" OptCount [] "showmsg [count]" "Recent log messages.";
-    // Flight Control
-    18 Takeoff "takeoff" None [NO_ARM] "takeoff" "Take off.";
-    19 Land "land" None [] "land" "Emergency land.";
-    20 Rtl "rtl" None [] "rtl" "Return to launch.";
-    21 Mrtl "mrtl" None [] "mrtl" "Mission return to launch.";
-    22 TetherLand "tether_land" None [] "tether_land" "Tethered landing.";
-    23 SetSpNed "set_sp_ned" Setpoint [] "set_sp_ned x:y:z:yaw" "Set the NED setpoint (metres, radians).";
-    24 Tunnelfly "tunnelfly" Flag [] "tunnelfly 0|1" "Tunnel fly mode off/on.";
-    25 Disarm "disarm" None [] "disarm" "Force disarm.";
-    26 Sleep "sleep" None [NO_ARM] "sleep" "Enter sleep mode.";
-    27 Wakeup "wakeup" None [] "wakeup" "Wake from sleep.";
-    28 AutosleepEnable "autosleep_enable" Flag [NO_ARM NO_LOCK] "autosleep_enable 0|1" "Auto-sleep off/on.";
-    29 Zyhk "zyhk" Zyhk [] "zyhk h1,h2,... [lx,ly,lyaw]" "Hover at several heights, then land.";
-    30 RelocatePos "relocate_pos" Pose [NO_ARM] "relocate_pos x,y,z,yaw" "Relocate the position (needs map_locate).";
-    // Mission Management
-    31 Mission "mission" Mission [] "mission ext_id:path_or_json" "Submit a mission.";
-    32 Plan "plan" Text [] "plan plan_string" "Start a flight plan.";
-    33 UnlockPlan "unlock_plan" None [NO_LOCK] "unlock_plan" "Clear the plan execution lock.";
-    34 MwList "mw_list" None [] "mw_list" "List mission waypoints.";
-    35 MwExec "mw_exec" MwExec [] "mw_exec ext_id:id,id,..." "Execute waypoints by id.";
-    36 Ai1Mission "ai1_mission" Ai1Mission [] "ai1_mission task_id:mission_file" "Submit an AI1 mission.";
-    37 ObsMission "obs_mission" Flag [] "obs_mission 0|1" "Obstacle mission live mode off/on.";
-    38 DumpMissionresult "dump_missionresult" OptCount [] "dump_missionresult [ext_id]" "Dump a mission result.";
-    39 DumpMissionlist "dump_missionlist" None [] "dump_missionlist" "Dump the short mission request list.";
-    40 AbortReport "abort_report" OptCount [] "abort_report [abort_id]" "Abort or finish a mission report.";
-    41 SetTaskname "set_taskname" Text [] "set_taskname name" "Set the current task name.";
-    // Map Management
-    42 Savemap "savemap" Name [NO_ARM NO_LOCK] "savemap name" "Save the current map.";
-    43 SetMaplocate "set_maplocate" Flag [NO_ARM NO_LOCK] "set_maplocate 0|1" "Map localisation off/on.";
-    44 SetMappath "set_mappath" Path [NO_ARM NO_LOCK] "set_mappath path" "Set the localisation map path.";
-    45 ListMaps "list_maps" None [] "list_maps" "List saved maps.";
-    46 RmMap "rm_map" Name [NO_ARM NO_LOCK] "rm_map name" "Remove a saved map.";
-    // Camera & Recording
-    47 Capture "capture" None [] "capture" "Capture an RGB and infrared photo.";
-    48 Snapshot "snapshot" None [] "snapshot" "System snapshot.";
-    49 Record "record" None [] "record" "Toggle video recording.";
-    50 Savebag "savebag" Flag [] "savebag 0|1" "Stop/start bag recording.";
-    51 SiyiReboot "siyi_reboot" None [NO_ARM NO_LOCK] "siyi_reboot" "Reboot the SIYI camera/gimbal.";
-    52 SiyiFormat "siyi_format" None [NO_ARM NO_LOCK] "siyi_format" "Format the SIYI SD card.";
-    53 SiyiCenter "siyi_center" None [] "siyi_center" "Center the SIYI gimbal.";
-    54 SiyiInit "siyi_init" None [NO_ARM NO_LOCK] "siyi_init" "Initialise SIYI (close HDMI).";
-    55 SiyiDownvideo "siyi_downvideo" OptCount [NO_ARM] "siyi_downvideo [vid]" "Download the latest video.";
-    56 SiyiSync "siyi_sync" None [] "siyi_sync" "Trigger SIYI sync.";
-    // LED Control
-    57 Ledon "ledon" None [] "ledon" "LED on.";
-    58 Ledoff "ledoff" None [] "ledoff" "LED off.";
-    59 Ledenable "ledenable" None [] "ledenable" "Enable LED control.";
-    60 Leddisable "leddisable" None [] "leddisable" "Disable LED control.";
-    61 Ledpwm "ledpwm" Pwm [] "ledpwm pwm" "Set the LED PWM value (0-65535).";
-    62 LedBlink "led_blink" None [] "led_blink" "Start LED blinking.";
-    // Parameter Management
-    63 SetParam "set_param" SetParam [NO_ARM NO_LOCK] "set_param name:value" "Set a parameter.";
-    64 ResetParam "reset_param" None [NO_ARM NO_LOCK] "reset_param" "Reset all parameters to defaults.";
-    65 SaveParam "save_param" Flag [NO_ARM NO_LOCK] "save_param 0|1" "Save parameters persistently.";
-    66 Passwd "passwd" NewPassword [NO_LOCK] "passwd new_password" "Change the login password.";
-    // Apron (Charging Pad)
-    67 ApronVol "apron_vol" Amount [NO_ARM NO_LOCK] "apron_vol voltage" "Set the charging voltage.";
-    68 ApronAmp "apron_amp" Amount [NO_ARM NO_LOCK] "apron_amp amperage" "Set the charging current.";
-    // System Management
-    69 RebootNode "reboot_node" None [NO_ARM NO_LOCK] "reboot_node" "Reboot the flight control node.";
-    70 RebootAp "reboot_ap" None [NO_ARM NO_LOCK] "reboot_ap" "Reboot the autopilot.";
-    71 RebootSystem "reboot_system" None [NO_ARM NO_LOCK] "reboot_system" "Reboot the onboard computer.";
-    72 PoweroffSystem "poweroff_system" None [NO_ARM NO_LOCK] "poweroff_system" "Power off the onboard computer.";
-    73 PreparePoweroff "prepare_poweroff" None [NO_ARM NO_LOCK] "prepare_poweroff" "Flush logs before power-off.";
-    74 RebootDlo "reboot_dlo" None [NO_ARM NO_LOCK] "reboot_dlo" "Reboot DLO.";
-    75 RestartDlo "restart_dlo" None [NO_ARM NO_LOCK] "restart_dlo" "Restart the DLO pipeline.";
-    76 KillLivox "kill_livox" OptName [NO_ARM NO_LOCK] "kill_livox [script]" "Kill the Livox driver.";
-    // Lidar & Perception
-    77 Lidaronoff "lidaronoff" Flag [NO_ARM NO_LOCK] "lidaronoff 0|1" "Lidar off/on.";
-    78 Lidarwarn "lidarwarn" None [] "lidarwarn" "Lidar warning zones.";
-    79 UtgGet "utg_get" None [] "utg_get" "Trigger a UTG thickness read.";
-    80 UtgSet "utg_set" Amount [] "utg_set speed" "Set the UTG sonic speed.";
-    // Other
-    81 GrabberCtrl "grabber_ctrl" Pwm [] "grabber_ctrl pwm" "Set the grabber PWM value (0-65535).";
-    82 Ara8Center "ara8_center" None [] "ara8_center" "ARA8 to center mode.";
-    83 Ara8Pitch "ara8_pitch" Angle [] "ara8_pitch angle" "Set the ARA8 pitch (-90..90).";
-    84 CvTest "cv_test" None [NO_ARM NO_LOCK] "cv_test" "Trigger a CV server test.";
-    85 PreflightCheck "preflight_check" None [NO_ARM] "preflight_check" "Run the preflight checks.";
-    86 PreflightEnable "preflight_enable" Flag [NO_ARM NO_LOCK] "preflight_enable 0|1" "Preflight checks before takeoff off/on.";
-    87 ClearBags "clear_bags" OptAmount [NO_ARM NO_LOCK] "clear_bags [min_gb]" "Clear old bag files.";
-    88 ClearImages "clear_images" OptAmount [NO_ARM NO_LOCK] "clear_images [min_gb]" "Clear old images.";
-    89 ListImagedir "list_imagedir" OptCount [] "list_imagedir [size]" "List image directories.";
-    90 RmImagedir "rm_imagedir" Name [NO_ARM NO_LOCK] "rm_imagedir name" "Remove an image directory.";
-    91 TestWp "test_wp" Point [] "test_wp x:y:z" "Test waypoint reachability.";
-    92 TestListwp "test_listwp" Path [] "test_listwp file_path" "Test a waypoint list from a file.";
-    93 TestNotif "test_notif" None [] "test_notif" "Test the notification server.";
-    94 Savemsg "savemsg" None [] "savemsg" "Save messages to the log.";
-    95 BmsSetpower "bms_setpower" Flag [NO_ARM NO_LOCK] "bms_setpower 0|1" "BMS power output off/on.";
-    96 BmsSetcharge "bms_setcharge" Flag [NO_ARM NO_LOCK] "bms_setcharge 0|1" "BMS charging off/on.";
-    97 Help "help" None [] "help" "List the commands.";
-    98 AdminLock "admin_lock" None [ADMIN] "admin_lock" "Enable the vehicle-wide lock (admin only).";
-    99 AdminUnlock "admin_unlock" None [ADMIN] "admin_unlock" "Disable the vehicle-wide lock (admin only).";
+    Authentication {
+        1 Login "login" Secret [] "login <password>" "Log this session in (1025: admin, 0315: log out).";
+    }
+    State {
+        2 State "state" None [] "state" "Full FSM state.";
+        3 Param "param" None [] "param" "All parameters.";
+        4 GetParam "get_param" ParamName [] "get_param name" "One parameter.";
+        5 Ver "ver" None [] "ver" "Version information.";
+        6 Sysinfo "sysinfo" None [] "sysinfo" "Uptime, RAM and loads.";
+        7 Diskusage "diskusage" None [] "diskusage" "Free disk space.";
+        8 Statics "statics" None [] "statics" "Communication and recording statistics.";
+        9 Machineid "machineid" None [] "machineid" "Unique hardware id.";
+        10 Hud1 "hud1" None [] "hud1" "Keyframes, ENU position and extras.";
+        11 Lidarpose "lidarpose" None [] "lidarpose" "Lidar pose.";
+        12 ApronState "apron_state" None [] "apron_state" "Charging pad status.";
+        13 MavlinkMsgs "mavlink_msgs" None [] "mavlink_msgs" "MAVLink message counts.";
+        14 GetSubmapInfo "get_submap_info" None [] "get_submap_info" "Map id and keyframe count.";
+        15 ShowSp "show_sp" None [] "show_sp" "Current setpoint.";
+        16 ShowApguid2 "show_apguid2" None [] "show_apguid2" "Autopilot guid2.";
+        17 Showmsg "showmsg" OptCount [] "showmsg [count]" "Recent log messages.";
+    }
+    Flight {
+        18 Takeoff "takeoff" None [NO_ARM] "takeoff" "Take off.";
+        19 Land "land" None [] "land" "Emergency land.";
+        20 Rtl "rtl" None [] "rtl" "Return to launch.";
+        21 Mrtl "mrtl" None [] "mrtl" "Mission return to launch.";
+        22 TetherLand "tether_land" None [] "tether_land" "Tethered landing.";
+        23 SetSpNed "set_sp_ned" Setpoint [] "set_sp_ned x:y:z:yaw" "Set the NED setpoint (metres, radians).";
+        24 Tunnelfly "tunnelfly" Flag [] "tunnelfly 0|1" "Tunnel fly mode off/on.";
+        25 Disarm "disarm" None [] "disarm" "Force disarm.";
+        26 Sleep "sleep" None [NO_ARM] "sleep" "Enter sleep mode.";
+        27 Wakeup "wakeup" None [] "wakeup" "Wake from sleep.";
+        28 AutosleepEnable "autosleep_enable" Flag [NO_ARM NO_LOCK] "autosleep_enable 0|1" "Auto-sleep off/on.";
+        29 Zyhk "zyhk" Zyhk [] "zyhk h1,h2,... [lx,ly,lyaw]" "Hover at several heights, then land.";
+        30 RelocatePos "relocate_pos" Pose [NO_ARM] "relocate_pos x,y,z,yaw" "Relocate the position (needs map_locate).";
+    }
+    Mission {
+        31 Mission "mission" Mission [] "mission ext_id:path_or_json" "Submit a mission.";
+        32 Plan "plan" Text [] "plan plan_string" "Start a flight plan.";
+        33 UnlockPlan "unlock_plan" None [NO_LOCK] "unlock_plan" "Clear the plan execution lock.";
+        34 MwList "mw_list" None [] "mw_list" "List mission waypoints.";
+        35 MwExec "mw_exec" MwExec [] "mw_exec ext_id:id,id,..." "Execute waypoints by id.";
+        36 Ai1Mission "ai1_mission" Ai1Mission [] "ai1_mission task_id:mission_file" "Submit an AI1 mission.";
+        37 ObsMission "obs_mission" Flag [] "obs_mission 0|1" "Obstacle mission live mode off/on.";
+        38 DumpMissionresult "dump_missionresult" OptCount [] "dump_missionresult [ext_id]" "Dump a mission result.";
+        39 DumpMissionlist "dump_missionlist" None [] "dump_missionlist" "Dump the short mission request list.";
+        40 AbortReport "abort_report" OptCount [] "abort_report [abort_id]" "Abort or finish a mission report.";
+        41 SetTaskname "set_taskname" Text [] "set_taskname name" "Set the current task name.";
+    }
+    Map {
+        42 Savemap "savemap" Name [NO_ARM NO_LOCK] "savemap name" "Save the current map.";
+        43 SetMaplocate "set_maplocate" Flag [NO_ARM NO_LOCK] "set_maplocate 0|1" "Map localisation off/on.";
+        44 SetMappath "set_mappath" Path [NO_ARM NO_LOCK] "set_mappath path" "Set the localisation map path.";
+        45 ListMaps "list_maps" None [] "list_maps" "List saved maps.";
+        46 RmMap "rm_map" Name [NO_ARM NO_LOCK] "rm_map name" "Remove a saved map.";
+    }
+    Camera {
+        47 Capture "capture" None [] "capture" "Capture an RGB and infrared photo.";
+        48 Snapshot "snapshot" None [] "snapshot" "System snapshot.";
+        49 Record "record" None [] "record" "Toggle video recording.";
+        50 Savebag "savebag" Flag [] "savebag 0|1" "Stop/start bag recording.";
+        51 SiyiReboot "siyi_reboot" None [NO_ARM NO_LOCK] "siyi_reboot" "Reboot the SIYI camera/gimbal.";
+        52 SiyiFormat "siyi_format" None [NO_ARM NO_LOCK] "siyi_format" "Format the SIYI SD card.";
+        53 SiyiCenter "siyi_center" None [] "siyi_center" "Center the SIYI gimbal.";
+        54 SiyiInit "siyi_init" None [NO_ARM NO_LOCK] "siyi_init" "Initialise SIYI (close HDMI).";
+        55 SiyiDownvideo "siyi_downvideo" OptCount [NO_ARM] "siyi_downvideo [vid]" "Download the latest video.";
+        56 SiyiSync "siyi_sync" None [] "siyi_sync" "Trigger SIYI sync.";
+    }
+    Led {
+        57 Ledon "ledon" None [] "ledon" "LED on.";
+        58 Ledoff "ledoff" None [] "ledoff" "LED off.";
+        59 Ledenable "ledenable" None [] "ledenable" "Enable LED control.";
+        60 Leddisable "leddisable" None [] "leddisable" "Disable LED control.";
+        61 Ledpwm "ledpwm" Pwm [] "ledpwm pwm" "Set the LED PWM value (0-65535).";
+        62 LedBlink "led_blink" None [] "led_blink" "Start LED blinking.";
+    }
+    Param {
+        63 SetParam "set_param" SetParam [NO_ARM NO_LOCK] "set_param name:value" "Set a parameter.";
+        64 ResetParam "reset_param" None [NO_ARM NO_LOCK] "reset_param" "Reset all parameters to defaults.";
+        65 SaveParam "save_param" Flag [NO_ARM NO_LOCK] "save_param 0|1" "Save parameters persistently.";
+        66 Passwd "passwd" NewPassword [NO_LOCK] "passwd new_password" "Change the login password.";
+    }
+    Apron {
+        67 ApronVol "apron_vol" Amount [NO_ARM NO_LOCK] "apron_vol voltage" "Set the charging voltage.";
+        68 ApronAmp "apron_amp" Amount [NO_ARM NO_LOCK] "apron_amp amperage" "Set the charging current.";
+    }
+    System {
+        69 RebootNode "reboot_node" None [NO_ARM NO_LOCK] "reboot_node" "Reboot the flight control node.";
+        70 RebootAp "reboot_ap" None [NO_ARM NO_LOCK] "reboot_ap" "Reboot the autopilot.";
+        71 RebootSystem "reboot_system" None [NO_ARM NO_LOCK] "reboot_system" "Reboot the onboard computer.";
+        72 PoweroffSystem "poweroff_system" None [NO_ARM NO_LOCK] "poweroff_system" "Power off the onboard computer.";
+        73 PreparePoweroff "prepare_poweroff" None [NO_ARM NO_LOCK] "prepare_poweroff" "Flush logs before power-off.";
+        74 RebootDlo "reboot_dlo" None [NO_ARM NO_LOCK] "reboot_dlo" "Reboot DLO.";
+        75 RestartDlo "restart_dlo" None [NO_ARM NO_LOCK] "restart_dlo" "Restart the DLO pipeline.";
+        76 KillLivox "kill_livox" OptName [NO_ARM NO_LOCK] "kill_livox [script]" "Kill the Livox driver.";
+    }
+    Lidar {
+        77 Lidaronoff "lidaronoff" Flag [NO_ARM NO_LOCK] "lidaronoff 0|1" "Lidar off/on.";
+        78 Lidarwarn "lidarwarn" None [] "lidarwarn" "Lidar warning zones.";
+        79 UtgGet "utg_get" None [] "utg_get" "Trigger a UTG thickness read.";
+        80 UtgSet "utg_set" Amount [] "utg_set speed" "Set the UTG sonic speed.";
+    }
+    Other {
+        81 GrabberCtrl "grabber_ctrl" Pwm [] "grabber_ctrl pwm" "Set the grabber PWM value (0-65535).";
+        82 Ara8Center "ara8_center" None [] "ara8_center" "ARA8 to center mode.";
+        83 Ara8Pitch "ara8_pitch" Angle [] "ara8_pitch angle" "Set the ARA8 pitch (-90..90).";
+        84 CvTest "cv_test" None [NO_ARM NO_LOCK] "cv_test" "Trigger a CV server test.";
+        85 PreflightCheck "preflight_check" None [NO_ARM] "preflight_check" "Run the preflight checks.";
+        86 PreflightEnable "preflight_enable" Flag [NO_ARM NO_LOCK] "preflight_enable 0|1" "Preflight checks before takeoff off/on.";
+        87 ClearBags "clear_bags" OptAmount [NO_ARM NO_LOCK] "clear_bags [min_gb]" "Clear old bag files.";
+        88 ClearImages "clear_images" OptAmount [NO_ARM NO_LOCK] "clear_images [min_gb]" "Clear old images.";
+        89 ListImagedir "list_imagedir" OptCount [] "list_imagedir [size]" "List image directories.";
+        90 RmImagedir "rm_imagedir" Name [NO_ARM NO_LOCK] "rm_imagedir name" "Remove an image directory.";
+        91 TestWp "test_wp" Point [] "test_wp x:y:z" "Test waypoint reachability.";
+        92 TestListwp "test_listwp" Path [] "test_listwp file_path" "Test a waypoint list from a file.";
+        93 TestNotif "test_notif" None [] "test_notif" "Test the notification server.";
+        94 Savemsg "savemsg" None [] "savemsg" "Save messages to the log.";
+        95 BmsSetpower "bms_setpower" Flag [NO_ARM NO_LOCK] "bms_setpower 0|1" "BMS power output off/on.";
+        96 BmsSetcharge "bms_setcharge" Flag [NO_ARM NO_LOCK] "bms_setcharge 0|1" "BMS charging off/on.";
+        97 Help "help" None [] "help" "List the commands.";
+        98 AdminLock "admin_lock" None [ADMIN] "admin_lock" "Enable the vehicle-wide lock (admin only).";
+        99 AdminUnlock "admin_unlock" None [ADMIN] "admin_unlock" "Disable the vehicle-wide lock (admin only).";
+    }
 }
 
 // The table is indexed by `id - 1`; a row out of order would break `spec()`.
 const _: () = {
-    let mut i = 0;
-    while i < TABLE.len() {
-        assert!(TABLE[i].id as usize == i + 1, "TABLE rows must be in id order");
-        i += 1;
+    let mut rows: &[Spec] = &TABLE;
+    let mut id = 1;
+    while let Some((row, rest)) = rows.split_first() {
+        assert!(row.id as usize == id, "TABLE rows must be in id order");
+        rows = rest;
+        id += 1;
     }
 };
 
@@ -259,36 +321,55 @@ fn name_order(a: &str, b: &str) -> core::cmp::Ordering {
     a.len().cmp(&b.len()).then_with(|| a.as_bytes().cmp(b.as_bytes()))
 }
 
-const fn name_less(a: &str, b: &str) -> bool {
-    let (a, b) = (a.as_bytes(), b.as_bytes());
+/// [`name_order`]'s `Less`, for compile time.
+const fn name_less(a: &[u8], b: &[u8]) -> bool {
     if a.len() != b.len() {
         return a.len() < b.len();
     }
-    let mut i = 0;
-    while i < a.len() && i < b.len() {
-        if a[i] != b[i] {
-            return a[i] < b[i];
+    let (mut a, mut b) = (a, b);
+    while let (Some((x, a_rest)), Some((y, b_rest))) = (a.split_first(), b.split_first()) {
+        if *x != *y {
+            return *x < *y;
         }
-        i += 1;
+        a = a_rest;
+        b = b_rest;
     }
-    a.len() < b.len()
+    false
+}
+
+/// The name of row `row`, for compile time (`""` past the end).
+const fn name_at(row: u8) -> &'static [u8] {
+    match TABLE.split_at_checked(row as usize) {
+        Some((_, [spec, ..])) => spec.name.as_bytes(),
+        _ => b"",
+    }
+}
+
+/// `order[i]`, for compile time (0 past the end).
+const fn at(order: &[u8], i: usize) -> u8 {
+    match order.split_at_checked(i) {
+        Some((_, [row, ..])) => *row,
+        _ => 0,
+    }
 }
 
 const fn sorted_by_name() -> [u8; TABLE.len()] {
     let mut order = [0u8; TABLE.len()];
     let mut i = 0;
-    while i < order.len() {
-        order[i] = i as u8;
+    while i < TABLE.len() {
+        if let Some(slot) = order.split_at_mut_checked(i) {
+            if let [first, ..] = slot.1 {
+                *first = i as u8;
+            }
+        }
         i += 1;
     }
     // Insertion sort: 99 rows, run once at compile time.
     let mut i = 1;
     while i < order.len() {
         let mut j = i;
-        while j > 0 && name_less(TABLE[order[j] as usize].name, TABLE[order[j - 1] as usize].name) {
-            let t = order[j];
-            order[j] = order[j - 1];
-            order[j - 1] = t;
+        while j > 0 && name_less(name_at(at(&order, j)), name_at(at(&order, j - 1))) {
+            order.swap(j, j - 1);
             j -= 1;
         }
         i += 1;
@@ -297,7 +378,7 @@ const fn sorted_by_name() -> [u8; TABLE.len()] {
     let mut i = 1;
     while i < order.len() {
         assert!(
-            name_less(TABLE[order[i - 1] as usize].name, TABLE[order[i] as usize].name),
+            name_less(name_at(at(&order, i - 1)), name_at(at(&order, i))),
             "command names must be unique"
         );
         i += 1;
@@ -324,16 +405,14 @@ impl CommandId {
         TABLE.get(usize::from(id).checked_sub(1)?).map(|s| s.id)
     }
 
-    /// The table row of this command.
-    pub fn spec(self) -> &'static Spec {
-        // The const check above proves `TABLE[id - 1].id == id` for every
-        // variant, so this index is always in bounds.
-        &TABLE[self as usize - 1]
-    }
-
     /// The wire name.
     pub fn name(self) -> &'static str {
         self.spec().name
+    }
+
+    /// Where the specification lists it.
+    pub fn section(self) -> Section {
+        self.spec().section
     }
 
     /// Finds a command by its wire name.

@@ -9,7 +9,7 @@ use std::cell::Cell;
 
 use lluav_core::{
     Args, Auth, Backend, Command, CommandId, Context, Failure, Fields, Message, Outcome, Server, Session,
-    TABLE, parse,
+    Step, TABLE, parse,
 };
 
 struct Counting;
@@ -66,7 +66,7 @@ impl Backend for Vehicle {
     fn armed(&self) -> bool {
         self.armed
     }
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         self.executed += 1;
         match cmd.args() {
             Args::MwExec { wp_ids, .. } => {
@@ -88,7 +88,7 @@ impl Backend for Vehicle {
                 });
             }
         }
-        Ok(())
+        Ok(Step::Done)
     }
 }
 
@@ -145,6 +145,7 @@ fn handling_frames_allocates_nothing() {
                 match server.handle(&mut session, Message::Text(frame), buf) {
                     Outcome::Reply(_) | Outcome::ReplyThenClose(..) => replies += 1,
                     Outcome::Close(_) => {}
+                    Outcome::Pending(t, _) => panic!("never pends: {t:?}"),
                 }
             }
             let _ = server.handle(&mut session, Message::Binary(b"x"), &mut out);

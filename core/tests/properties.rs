@@ -7,7 +7,7 @@ use common::*;
 use heapless::Vec as HVec;
 use lluav_core::{
     Args, Command, Grammar, LandPoint, MAX_HEIGHTS, MAX_WAYPOINT_IDS, Message, Outcome, Payload, Point, Pose,
-    Session, TABLE, parse,
+    Session, Step, TABLE, parse,
 };
 use proptest::prelude::*;
 
@@ -282,6 +282,7 @@ proptest! {
                     prop_assert!(!valid_utf8);
                     prop_assert_eq!(code.code(), 1007);
                 }
+                Outcome::Pending(t, _) => prop_assert!(false, "the mock vehicle never pends: {:?}", t),
             }
         }
     }
@@ -299,11 +300,11 @@ impl lluav_core::Backend for Say {
         _: &Command<'_>,
         _: &lluav_core::Context,
         out: &mut lluav_core::Fields<'_>,
-    ) -> Result<(), lluav_core::Failure> {
+    ) -> Result<Step, lluav_core::Failure> {
         out.str("said", &self.0).object("nested", |o| {
             o.str(&self.0, &self.0);
         });
-        Ok(())
+        Ok(Step::Done)
     }
 }
 

@@ -6,7 +6,7 @@ mod common;
 use common::*;
 use lluav_core::{
     Auth, Backend, CloseCode, Command, Context, Failure, Fields, MIN_RESPONSE_CAPACITY, Message, Outcome,
-    Ret, Server, Session,
+    Ret, Server, Session, Step,
 };
 
 #[test]
@@ -40,7 +40,7 @@ impl Backend for Echo {
     fn armed(&self) -> bool {
         false
     }
-    fn execute(&mut self, cmd: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         let lluav_core::Args::Text(t) = cmd.args() else {
             return Err(Failure::unsupported("text only"));
         };
@@ -72,7 +72,7 @@ impl Backend for Echo {
                     values: [1.5, -0.0],
                 },
             );
-        Ok(())
+        Ok(Step::Done)
     }
 }
 
@@ -268,7 +268,7 @@ fn integers_are_written_exactly_across_the_whole_range() {
         fn armed(&self) -> bool {
             false
         }
-        fn execute(&mut self, _: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+        fn execute(&mut self, _: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
             out.array("u", |a| {
                 for v in &self.0 {
                     a.u64(*v);
@@ -279,7 +279,7 @@ fn integers_are_written_exactly_across_the_whole_range() {
                     a.i64(*v as i64);
                 }
             });
-            Ok(())
+            Ok(Step::Done)
         }
     }
     let mut values = vec![

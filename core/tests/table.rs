@@ -1,7 +1,7 @@
 //! The command table against the contract: the specification's commands and
 //! DESIGN.md's ids and gate lists.
 
-use lluav_core::{CommandId, TABLE, table};
+use lluav_core::{CommandId, Section, TABLE, table};
 
 /// DESIGN.md, "Sessions and gates": runOnArm=false.
 const NOT_WHILE_ARMED: &[&str] = &[
@@ -149,6 +149,47 @@ fn every_command_of_the_spec_reference_is_in_the_table() {
         table, names,
         "the table lists the spec's commands in the spec's order"
     );
+}
+
+#[test]
+fn every_command_stands_in_the_section_where_the_spec_first_lists_it() {
+    let spec = include_str!("../../docs/lluav-websocket-protocol.md");
+    let reference = spec
+        .split("## Command Reference")
+        .nth(1)
+        .expect("the spec has a Command Reference");
+    let heading = |h: &str| match h {
+        "State & Telemetry" => Section::State,
+        "Flight Control" => Section::Flight,
+        "Mission Management" => Section::Mission,
+        "Map Management" => Section::Map,
+        "Camera & Recording" => Section::Camera,
+        "LED Control" => Section::Led,
+        "Parameter Management" => Section::Param,
+        "Apron (Charging Pad)" => Section::Apron,
+        "System Management" => Section::System,
+        "Lidar & Perception" => Section::Lidar,
+        "Other" => Section::Other,
+        other => panic!("a heading the table has no section for: {other}"),
+    };
+    let mut first_seen: Vec<(&str, Section)> = vec![("login", Section::Authentication)];
+    let mut current = None;
+    for line in reference.lines() {
+        if let Some(h) = line.strip_prefix("### ") {
+            current = Some(heading(h.trim()));
+        } else if let (Some(rest), Some(section)) = (line.strip_prefix("| "), current) {
+            let name = rest.split(' ').next().unwrap_or("");
+            if CommandId::from_name(name).is_some() && !first_seen.iter().any(|(n, _)| *n == name) {
+                first_seen.push((name, section));
+            }
+        }
+    }
+    assert_eq!(first_seen.len(), TABLE.len());
+    for (name, section) in first_seen {
+        let id = CommandId::from_name(name).expect("a known name");
+        assert_eq!(id.section(), section, "{name}");
+        assert_eq!(id.spec().section, section, "{name}");
+    }
 }
 
 #[test]

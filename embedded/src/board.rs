@@ -3,7 +3,7 @@
 //! state the firmware feeds it, and answers every other command as
 //! unsupported (ret -2), honestly.
 
-use lluav_core::{Args, Backend, Command, CommandId, Context, Failure, Fields};
+use lluav_core::{Args, Backend, Command, CommandId, Context, Failure, Fields, Step};
 
 /// What the user LED should do.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -91,7 +91,7 @@ impl<P: Peripherals> Backend for Board<P> {
         self.armed
     }
 
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         match (cmd.id(), cmd.args()) {
             (CommandId::State, _) => {
                 let (armed, led, enabled, pwm) = (self.armed, self.led, self.led_enabled, self.pwm);
@@ -103,20 +103,20 @@ impl<P: Peripherals> Backend for Board<P> {
                         .bool("led_enabled", enabled)
                         .u64("led_pwm", u64::from(pwm));
                 });
-                Ok(())
+                Ok(Step::Done)
             }
-            (CommandId::Ledon, _) => self.set_led(Led::On),
-            (CommandId::Ledoff, _) => self.set_led(Led::Off),
-            (CommandId::LedBlink, _) => self.set_led(Led::Blink),
+            (CommandId::Ledon, _) => self.set_led(Led::On).map(|()| Step::Done),
+            (CommandId::Ledoff, _) => self.set_led(Led::Off).map(|()| Step::Done),
+            (CommandId::LedBlink, _) => self.set_led(Led::Blink).map(|()| Step::Done),
             (CommandId::Ledenable, _) => {
                 self.led_enabled = true;
-                Ok(())
+                Ok(Step::Done)
             }
             (CommandId::Leddisable, _) => {
                 self.led_enabled = false;
                 self.led = Led::Off;
                 self.peripherals.led(Led::Off);
-                Ok(())
+                Ok(Step::Done)
             }
             (CommandId::Ledpwm, Args::Pwm(duty)) => {
                 if !self.led_enabled {
@@ -125,7 +125,7 @@ impl<P: Peripherals> Backend for Board<P> {
                 self.peripherals.pwm(*duty)?;
                 self.pwm = *duty;
                 out.u64("pwm", u64::from(*duty));
-                Ok(())
+                Ok(Step::Done)
             }
             _ => Err(Failure::unsupported(UNSUPPORTED)),
         }

@@ -168,6 +168,9 @@ impl Outbox<'_> {
                 self.close(io, code).await.map(Some)
             }
             Outcome::Close(code) => self.close(io, code).await.map(Some),
+            // Services wait for their backend (`Service::handle`); one that
+            // did not broke its contract.
+            Outcome::Pending(..) => self.close(io, CloseCode::InternalError).await.map(Some),
         }
     }
 

@@ -2,7 +2,11 @@
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::{Mutex, MutexGuard};
+use embassy_time::{Duration, Timer};
 use lluav_core::{Backend, Clock, CloseCode, Message, Outcome, Server};
+
+/// How often a command the backend left pending is asked again.
+const PENDING_POLL: Duration = Duration::from_millis(5);
 
 /// Handles the complete messages of every connection.
 ///
@@ -19,7 +23,8 @@ pub trait Service {
     /// The state of a newly accepted connection.
     fn open(&self) -> Self::Session;
 
-    /// Answers one complete message, writing any reply into `out`.
+    /// Answers one complete message, writing any reply into `out`; never
+    /// [`Outcome::Pending`].
     async fn handle<'o>(
         &self,
         session: &mut Self::Session,
@@ -31,7 +36,9 @@ pub trait Service {
 /// The protocol server for one vehicle, shared by every connection.
 ///
 /// The lock is held only for the synchronous [`Server::handle`] call, never
-/// across network I/O, so a slow client never delays the others.
+/// across network I/O, so a slow client never delays the others. A command
+/// the backend leaves pending is asked again every [`PENDING_POLL`] with the
+/// lock released, so other sessions go on meanwhile.
 pub struct SharedServer<M: RawMutex, B, C> {
     server: Mutex<M, Server<B, C>>,
 }
@@ -63,7 +70,12 @@ impl<M: RawMutex, B: Backend, C: Clock> Service for SharedServer<M, B, C> {
         message: Message<'_>,
         out: &'o mut [u8],
     ) -> Outcome<'o> {
-        self.server.lock().await.handle(session, message, out)
+        let mut outcome = self.server.lock().await.handle(session, message, out);
+        while let Outcome::Pending(_, buf) = outcome {
+            Timer::after(PENDING_POLL).await;
+            outcome = self.server.lock().await.resume(session, buf);
+        }
+        outcome
     }
 }
 
@@ -78,22 +90,17 @@ impl Service for Echo {
     fn open(&self) -> Self::Session {}
 
     async fn handle<'o>(&self, _: &mut (), message: Message<'_>, out: &'o mut [u8]) -> Outcome<'o> {
-        match message {
-            Message::Text(bytes) => {
-                let Ok(text) = core::str::from_utf8(bytes) else {
-                    return Outcome::Close(CloseCode::InvalidPayload);
-                };
-                let Some(dst) = out.get_mut(..text.len()) else {
-                    return Outcome::Close(CloseCode::TooBig);
-                };
-                dst.copy_from_slice(text.as_bytes());
-                match core::str::from_utf8(dst) {
-                    Ok(echo) => Outcome::Reply(echo),
-                    Err(_) => Outcome::Close(CloseCode::InternalError),
-                }
-            }
-            Message::Binary(_) => Outcome::Close(CloseCode::Unsupported),
-            Message::Oversized => Outcome::Close(CloseCode::TooBig),
+        let text = match message.text() {
+            Ok(text) => text,
+            Err(code) => return Outcome::Close(code),
+        };
+        let Some(dst) = out.get_mut(..text.len()) else {
+            return Outcome::Close(CloseCode::TooBig);
+        };
+        dst.copy_from_slice(text.as_bytes());
+        match core::str::from_utf8(dst) {
+            Ok(echo) => Outcome::Reply(echo),
+            Err(_) => Outcome::Close(CloseCode::InternalError),
         }
     }
 }

@@ -1,33 +1,57 @@
-//! Sequences of messages through the full entry point, with a vehicle whose
-//! armed state the input flips. Every text message gets exactly one JSON
-//! object with integer ret, cmd and ts, or a close code; and the gates hold.
+//! Sequences of messages through the full entry point, over several
+//! connections from a few client addresses, with a vehicle whose armed
+//! state the input flips and a clock the input moves. Every text message
+//! gets exactly one JSON object with integer ret, cmd and ts (at once, or
+//! through `resume` when the vehicle waits), or a close code; the gates
+//! hold; and every `login` is answered as DESIGN.md's per-address
+//! throttling rules say, written out plainly in `Logins`.
 //!
 //! Input: the first byte's low bit sets a password (`pw`); the rest is split
-//! at `\n` into messages, except that the lines `\x01arm`, `\x01disarm`
-//! and `\x01binary` flip the vehicle's armed state or send a binary
-//! message. Seeds are therefore readable scripts (see `seeds/session`).
+//! at `\n` into messages, except these control lines: `\x01arm` and
+//! `\x01disarm` flip the vehicle's armed state, `\x01binary` sends a binary
+//! message, `\x01connN` closes the connection and opens a new one from
+//! address `N % 4`, `\x01wait` moves the clock 20 s on. A connection the
+//! server closed is reopened from the same address. The vehicle waits for
+//! an "autopilot" on `takeoff` and answers it through `resume`. Seeds are
+//! therefore readable scripts (see `seeds/session`).
 #![no_main]
 // `!(armed && !run_on_arm)` reads as the gate rule it checks.
 #![allow(clippy::nonminimal_bool)]
 
+use std::cell::Cell;
+use std::collections::HashMap;
+use std::net::{IpAddr, Ipv4Addr};
+use std::rc::Rc;
+
 use libfuzzer_sys::fuzz_target;
 use lluav_core::{
-    Auth, Backend, CloseCode, Command, CommandId, Context, Failure, Fields, Message, Outcome, Server,
-    Session, error::messages, parse::split, table::lookup,
+    Args, Auth, Backend, CloseCode, Command, CommandId, Context, Failure, Fields, Message, Outcome, Role,
+    Server, Session, SessionId, Step, Ticket, error::messages, parse, parse::split, table::lookup,
+    throttle::MAX_WRONG_PASSWORDS,
 };
 
-enum Step<'a> {
+const LOCKOUT_MS: u32 = 30_000;
+const MAX_LOCKOUT_MS: u32 = 15 * 60_000;
+const WAIT_MS: i64 = 20_000;
+
+enum Line<'a> {
     Text(&'a [u8]),
     Binary,
     Arm(bool),
+    Connect(u8),
+    Wait,
 }
 
-fn steps(data: &[u8]) -> impl Iterator<Item = Step<'_>> {
+fn lines(data: &[u8]) -> impl Iterator<Item = Line<'_>> {
     data.split(|&b| b == b'\n').map(|line| match line {
-        b"\x01arm" => Step::Arm(true),
-        b"\x01disarm" => Step::Arm(false),
-        b"\x01binary" => Step::Binary,
-        other => Step::Text(other),
+        b"\x01arm" => Line::Arm(true),
+        b"\x01disarm" => Line::Arm(false),
+        b"\x01binary" => Line::Binary,
+        b"\x01wait" => Line::Wait,
+        other => match other.strip_prefix(b"\x01conn") {
+            Some(n) => Line::Connect(n.first().copied().unwrap_or(0) % 4),
+            None => Line::Text(other),
+        },
     })
 }
 
@@ -35,9 +59,17 @@ fn steps(data: &[u8]) -> impl Iterator<Item = Step<'_>> {
 #[derive(Clone, Copy)]
 struct Before {
     gated: bool,
-    admin: bool,
+    role: Role,
     armed: bool,
     locked: bool,
+    session: SessionId,
+    now: i64,
+}
+
+impl Before {
+    fn admin(&self) -> bool {
+        self.role == Role::Admin
+    }
 }
 
 /// A deterministic vehicle that checks, on every execution, that the gates
@@ -45,6 +77,8 @@ struct Before {
 struct Vehicle {
     armed: bool,
     before: Option<Before>,
+    waiting: Option<Ticket>,
+    tickets: u32,
 }
 
 impl Backend for Vehicle {
@@ -52,26 +86,48 @@ impl Backend for Vehicle {
         self.armed
     }
 
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         let b = self.before.expect("execute runs only inside a message");
         let flags = cmd.id().spec().flags;
         assert!(!b.gated, "{:?} ran before login", cmd.id());
         assert!(!(b.armed && !flags.run_on_arm), "{:?} ran while armed", cmd.id());
         assert!(
-            !(b.locked && !b.admin && !flags.run_in_lock),
+            !(b.locked && !b.admin() && !flags.run_in_lock),
             "{:?} ran in lock mode",
             cmd.id()
         );
-        assert!(!flags.admin_only || b.admin, "{:?} ran without admin", cmd.id());
-        assert_eq!((ctx.admin, ctx.lock_mode), (b.admin, b.locked));
+        assert!(!flags.admin_only || b.admin(), "{:?} ran without admin", cmd.id());
+        assert_eq!(
+            (ctx.role, ctx.lock_mode, ctx.session, ctx.now_ms),
+            (b.role, b.locked, b.session, b.now)
+        );
         match cmd.id() {
-            CommandId::Takeoff => self.armed = true,
+            CommandId::Takeoff => {
+                self.tickets += 1;
+                let ticket = Ticket(self.tickets);
+                self.waiting = Some(ticket);
+                return Ok(Step::Pending(ticket));
+            }
             CommandId::Land | CommandId::Disarm => self.armed = false,
             CommandId::Capture => return Err(Failure::system("camera unplugged")),
+            CommandId::Sysinfo => {
+                return Err(out.fail(lluav_core::Ret::SystemCall, format_args!("sysinfo(): {}", "EIO")));
+            }
             _ => {}
         }
         out.str("echo", cmd.id().name());
-        Ok(())
+        Ok(Step::Done)
+    }
+
+    fn finish(&mut self, ticket: Ticket, _: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
+        assert_eq!(
+            self.waiting.take(),
+            Some(ticket),
+            "finish of a ticket nobody waits for"
+        );
+        self.armed = true;
+        out.str("echo", "takeoff");
+        Ok(Step::Done)
     }
 }
 
@@ -89,7 +145,7 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
     let obj = v.as_object().expect("a reply is an object");
     let ret = obj["ret"].as_i64().expect("integer ret");
     let cmd = obj["cmd"].as_u64().expect("integer cmd");
-    obj["ts"].as_i64().expect("integer ts");
+    assert_eq!(obj["ts"].as_i64(), Some(b.now), "ts is the request's time");
     assert!(reply.starts_with(r#"{"ret":"#));
     let spec = split(frame).and_then(|s| lookup(s.name));
     assert_eq!(cmd, spec.map_or(0, |s| u64::from(u8::from(s.id))));
@@ -103,7 +159,7 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
                 "{frame:?} succeeded before login"
             );
             assert!(
-                !(spec.flags.admin_only && !b.admin),
+                !(spec.flags.admin_only && !b.admin()),
                 "{frame:?} succeeded without admin"
             );
             assert!(
@@ -111,7 +167,7 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
                 "{frame:?} succeeded while armed"
             );
             assert!(
-                !(b.locked && !b.admin && !spec.flags.run_in_lock),
+                !(b.locked && !b.admin() && !spec.flags.run_in_lock),
                 "{frame:?} succeeded in lock"
             );
         }
@@ -125,53 +181,153 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
     }
 }
 
+/// DESIGN.md's per-address rules, written out plainly: what a `login`
+/// must be answered.
+#[derive(Default)]
+struct Logins {
+    /// Per address: wrong passwords in a row, lockouts so far, locked until.
+    records: HashMap<u8, (u8, u32, i64)>,
+}
+
+impl Logins {
+    /// The `msg` a login with `attempt` from `addr` must get ("" for ret 0).
+    fn expect(&mut self, addr: u8, attempt: &str, password: Option<&str>, now: i64) -> &'static str {
+        let (wrong, lockouts, until) = self.records.entry(addr).or_insert((0, 0, i64::MIN));
+        if now < *until {
+            return messages::THROTTLED;
+        }
+        if attempt == "1025" || password == Some(attempt) {
+            self.records.remove(&addr);
+            return "";
+        }
+        if attempt == "0315" {
+            return "";
+        }
+        *wrong += 1;
+        if *wrong >= MAX_WRONG_PASSWORDS {
+            let ms = u64::from(LOCKOUT_MS)
+                .checked_shl(*lockouts)
+                .map_or(u64::from(MAX_LOCKOUT_MS), |ms| ms.min(u64::from(MAX_LOCKOUT_MS)));
+            *until = now + i64::try_from(ms).expect("a lockout fits");
+            *lockouts += 1;
+            *wrong = 0;
+        }
+        messages::WRONG_PASSWORD
+    }
+}
+
+/// One client connection and where it comes from.
+struct Client {
+    addr: u8,
+    session: Session,
+}
+
+fn ip(addr: u8) -> IpAddr {
+    IpAddr::V4(Ipv4Addr::new(10, 0, 0, addr))
+}
+
+type Fuzzed = Server<Vehicle, Box<dyn Fn() -> i64>>;
+
+/// Sends `bytes` on `client` and checks the answer; returns whether the
+/// server closed the connection.
+fn exchange(server: &mut Fuzzed, client: &mut Client, logins: &mut Logins, bytes: &[u8], b: Before) -> bool {
+    let text = std::str::from_utf8(bytes).ok();
+    let login = text.and_then(|t| match parse(t) {
+        Ok(c) if c.id() == CommandId::Login => match c.args() {
+            Args::Secret(attempt) => Some((*attempt).to_owned()),
+            _ => None,
+        },
+        _ => None,
+    });
+    let password = server.auth().password().map(str::to_owned);
+    let expected = login.map(|a| logins.expect(client.addr, &a, password.as_deref(), b.now));
+    let mut out = [0u8; 4096];
+    let mut outcome = server.handle(&mut client.session, Message::Text(bytes), &mut out);
+    while let Outcome::Pending(ticket, buf) = outcome {
+        assert_eq!(server.backend().waiting, Some(ticket));
+        outcome = server.resume(&mut client.session, buf);
+    }
+    if let (Some(reply), Some(expected)) = (outcome.reply(), expected) {
+        let v: serde_json::Value = serde_json::from_str(reply).expect("a reply is JSON");
+        assert_eq!(
+            v["msg"].as_str().unwrap_or(""),
+            expected,
+            "login from {}",
+            client.addr
+        );
+    }
+    match outcome {
+        Outcome::Reply(r) => check_reply(r, text.expect("only UTF-8 is answered"), b),
+        Outcome::ReplyThenClose(r, code) => {
+            assert_eq!(code, CloseCode::Policy);
+            check_reply(r, text.expect("only UTF-8 is answered"), b);
+            return true;
+        }
+        Outcome::Close(code) => {
+            assert!(text.is_none(), "a text message got close {code:?}");
+            assert_eq!(code, CloseCode::InvalidPayload);
+            return true;
+        }
+        Outcome::Pending(..) => unreachable!("resumed above"),
+    }
+    false
+}
+
 fuzz_target!(|data: &[u8]| {
     let Some((&first, script)) = data.split_first() else {
         return;
     };
-    let auth = Auth::new((first & 1 == 1).then_some("pw")).expect("valid password");
-    let mut server = Server::new(
-        Vehicle {
-            armed: false,
-            before: None,
-        },
-        || 1_700_000_000_000_i64,
-        auth,
-    );
-    let mut session = Session::new();
-    let mut out = [0u8; 4096];
-    for step in steps(script) {
+    let now = Rc::new(Cell::new(1_700_000_000_000_i64));
+    let clock = Rc::clone(&now);
+    let auth = Auth::new((first & 1 == 1).then_some("pw"))
+        .expect("valid password")
+        .with_lockout(LOCKOUT_MS, MAX_LOCKOUT_MS);
+    let vehicle = Vehicle {
+        armed: false,
+        before: None,
+        waiting: None,
+        tickets: 0,
+    };
+    let mut server: Fuzzed = Server::new(vehicle, Box::new(move || clock.get()), auth);
+    let mut logins = Logins::default();
+    let mut client = Client {
+        addr: 0,
+        session: server.open(Some(ip(0))),
+    };
+    for line in lines(script) {
         let before = Before {
-            gated: server.auth().password_required() && !session.logged_in(),
-            admin: session.admin(),
+            gated: server.auth().password_required() && !client.session.logged_in(),
+            role: client.session.role(),
             armed: server.backend().armed,
             locked: server.auth().lock_mode(),
+            session: client.session.id(),
+            now: now.get(),
         };
         server.backend_mut().before = Some(before);
-        let bytes: &[u8] = match step {
-            Step::Arm(on) => {
+        let reconnect = match line {
+            Line::Arm(on) => {
                 server.backend_mut().armed = on;
-                continue;
+                false
             }
-            Step::Binary => {
-                let o = server.handle(&mut session, Message::Binary(b"state"), &mut out);
+            Line::Wait => {
+                now.set(now.get() + WAIT_MS);
+                false
+            }
+            Line::Connect(addr) => {
+                client.addr = addr;
+                true
+            }
+            Line::Binary => {
+                let mut out = [0u8; 64];
+                let o = server.handle(&mut client.session, Message::Binary(b"state"), &mut out);
                 assert_eq!(o, Outcome::Close(CloseCode::Unsupported));
-                continue;
+                true
             }
-            Step::Text(b) => b,
+            Line::Text(bytes) => exchange(&mut server, &mut client, &mut logins, bytes, before),
         };
-        let text = std::str::from_utf8(bytes).ok();
-        match server.handle(&mut session, Message::Text(bytes), &mut out) {
-            Outcome::Reply(r) => check_reply(r, text.expect("only UTF-8 is answered"), before),
-            Outcome::ReplyThenClose(r, code) => {
-                assert_eq!(code, CloseCode::Policy);
-                check_reply(r, text.expect("only UTF-8 is answered"), before);
-                break;
-            }
-            Outcome::Close(code) => {
-                assert!(text.is_none(), "a text message got close {code:?}");
-                assert_eq!(code, CloseCode::InvalidPayload);
-            }
+        if reconnect {
+            server.close(&client.session);
+            client.session = server.open(Some(ip(client.addr)));
         }
     }
 });

@@ -7,10 +7,11 @@
 
 use std::future::Future;
 use std::net::SocketAddr;
+use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use lluav_core::{Auth, AuthError, Backend, Clock, Message, Outcome, Server, Session};
+use lluav_core::{Auth, AuthError, Backend, Clock, Message, Outcome, Server, Session, Ticket};
 use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
 use tracing::{error, info};
@@ -41,6 +42,9 @@ impl Clock for SystemClock {
     }
 }
 
+/// Completes when a pending command's ticket is ready (see [`Vehicle::ready`]).
+pub type Ready = Pin<Box<dyn Future<Output = ()> + Send>>;
+
 /// A backend the daemon can drive: advanced in time and flushed at exit.
 pub trait Vehicle: Backend + Send + 'static {
     /// Advances the vehicle by `dt` of wall time.
@@ -50,6 +54,16 @@ pub trait Vehicle: Backend + Send + 'static {
     /// A password saved by an earlier `passwd`, used when none is configured.
     fn stored_password(&self) -> Option<String> {
         None
+    }
+    /// A future that completes once the command `execute` left pending
+    /// with `ticket` can be finished. It is awaited with the vehicle
+    /// unlocked, so other sessions are served meanwhile; then
+    /// [`Server::resume`] asks [`Backend::finish`] for the answer. A vehicle
+    /// that never answers [`lluav_core::Step::Pending`] keeps the default,
+    /// which is ready at once.
+    fn ready(&mut self, ticket: Ticket) -> Ready {
+        let _ = ticket;
+        Box::pin(std::future::ready(()))
     }
 }
 
@@ -89,14 +103,9 @@ impl<V> Protocol<V> {
     }
 }
 
-impl<V: Vehicle> Handler for Protocol<V> {
-    type Session = Session;
-
-    fn session(&self) -> Session {
-        Session::new()
-    }
-
-    fn handle<'o>(&self, session: &mut Session, message: Message<'o>, out: &'o mut [u8]) -> Outcome<'o> {
+impl<V: Vehicle> Protocol<V> {
+    /// Runs `f` on the server, locked.
+    fn locked<R>(&self, f: impl FnOnce(&mut Server<V, SystemClock>) -> R) -> R {
         // The common case, a free lock, runs right here: handing the worker
         // to another thread for every frame (block_in_place) cost more than
         // the frame itself (the load bench's profile: most of lluavd's CPU
@@ -108,8 +117,8 @@ impl<V: Vehicle> Handler for Protocol<V> {
         // the hand-off wakes another thread, many times that long.
         for _ in 0..LOCK_SPINS {
             match self.server.try_lock() {
-                Ok(mut server) => return server.handle(session, message, out),
-                Err(TryLockError::Poisoned(p)) => return p.into_inner().handle(session, message, out),
+                Ok(mut server) => return f(&mut server),
+                Err(TryLockError::Poisoned(p)) => return f(&mut p.into_inner()),
                 Err(TryLockError::WouldBlock) => std::hint::spin_loop(),
             }
         }
@@ -118,10 +127,38 @@ impl<V: Vehicle> Handler for Protocol<V> {
         let multi_thread =
             Handle::try_current().is_ok_and(|h| h.runtime_flavor() == RuntimeFlavor::MultiThread);
         if multi_thread {
-            tokio::task::block_in_place(move || lock(&self.server).handle(session, message, out))
+            tokio::task::block_in_place(move || f(&mut lock(&self.server)))
         } else {
-            lock(&self.server).handle(session, message, out)
+            f(&mut lock(&self.server))
         }
+    }
+}
+
+impl<V: Vehicle> Handler for Protocol<V> {
+    type Session = Session;
+
+    fn session(&self, peer: SocketAddr) -> Session {
+        self.locked(|server| server.open(Some(peer.ip())))
+    }
+
+    async fn handle<'o>(
+        &'o self,
+        session: &'o mut Session,
+        message: Message<'o>,
+        out: &'o mut [u8],
+    ) -> Outcome<'o> {
+        let mut outcome = self.locked(|server| server.handle(session, message, out));
+        // The vehicle waits for something outside (an autopilot's ACK):
+        // wait with the lock released, so other sessions go on.
+        while let Outcome::Pending(ticket, buf) = outcome {
+            self.locked(|server| server.backend_mut().ready(ticket)).await;
+            outcome = self.locked(|server| server.resume(session, buf));
+        }
+        outcome
+    }
+
+    fn closed(&self, session: Session) {
+        self.locked(|server| server.close(&session));
     }
 }
 
@@ -160,7 +197,7 @@ pub enum DaemonError {
 }
 
 enum Mode<V> {
-    Protocol(Server<V, SystemClock>),
+    Protocol(Box<Server<V, SystemClock>>),
     Echo,
 }
 
@@ -200,7 +237,7 @@ impl<V: Vehicle> Daemon<V> {
         let mode = match vehicle {
             Some(v) => {
                 let auth = auth(settings, v.stored_password())?;
-                Mode::Protocol(Server::new(v, SystemClock, auth))
+                Mode::Protocol(Box::new(Server::new(v, SystemClock, auth)))
             }
             None => Mode::Echo,
         };
@@ -231,7 +268,7 @@ impl<V: Vehicle> Daemon<V> {
                 ws::serve(self.listener, Arc::new(Echo), self.limits, shutdown).await;
                 return Ok(());
             }
-            Mode::Protocol(server) => Arc::new(Mutex::new(server)),
+            Mode::Protocol(server) => Arc::new(Mutex::new(*server)),
         };
         let ticker = tokio::spawn(tick(Arc::clone(&server)));
         let handler = Arc::new(Protocol::new(Arc::clone(&server)));

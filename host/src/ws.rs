@@ -20,7 +20,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use futures_util::{FutureExt, SinkExt, StreamExt};
-use lluav_core::{CloseCode, Message, Outcome};
+use lluav_core::{Message, Outcome};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
@@ -39,13 +39,25 @@ pub trait Handler: Send + Sync + 'static {
     /// Per-connection state (for the protocol: the login [`lluav_core::Session`]).
     type Session: Send + 'static;
 
-    /// State for a new connection.
-    fn session(&self) -> Self::Session;
+    /// State for a new connection from `peer`.
+    fn session(&self, peer: SocketAddr) -> Self::Session;
 
     /// Handles one message; the reply may borrow from `message` or `out`.
-    /// `out` holds [`Limits::response_capacity`] bytes.
-    fn handle<'o>(&self, session: &mut Self::Session, message: Message<'o>, out: &'o mut [u8])
-    -> Outcome<'o>;
+    /// `out` holds [`Limits::response_capacity`] bytes. The answer may take
+    /// a while (an autopilot's acknowledgement); other connections are
+    /// served meanwhile, and this one's later messages wait their turn.
+    /// Never [`Outcome::Pending`].
+    fn handle<'o>(
+        &'o self,
+        session: &'o mut Self::Session,
+        message: Message<'o>,
+        out: &'o mut [u8],
+    ) -> impl Future<Output = Outcome<'o>> + Send + 'o;
+
+    /// The connection of `session` has ended.
+    fn closed(&self, session: Self::Session) {
+        let _ = session;
+    }
 }
 
 /// Echoes every text message back unchanged and otherwise behaves like the
@@ -57,16 +69,12 @@ pub struct Echo;
 impl Handler for Echo {
     type Session = ();
 
-    fn session(&self) {}
+    fn session(&self, _: SocketAddr) {}
 
-    fn handle<'o>(&self, _: &mut (), message: Message<'o>, _: &'o mut [u8]) -> Outcome<'o> {
-        match message {
-            Message::Text(bytes) => match std::str::from_utf8(bytes) {
-                Ok(text) => Outcome::Reply(text),
-                Err(_) => Outcome::Close(CloseCode::InvalidPayload),
-            },
-            Message::Binary(_) => Outcome::Close(CloseCode::Unsupported),
-            Message::Oversized => Outcome::Close(CloseCode::TooBig),
+    async fn handle<'o>(&'o self, _: &'o mut (), message: Message<'o>, _: &'o mut [u8]) -> Outcome<'o> {
+        match message.text() {
+            Ok(text) => Outcome::Reply(text),
+            Err(code) => Outcome::Close(code),
         }
     }
 }
@@ -279,7 +287,7 @@ pub async fn connection<S, H>(
         }
     };
     debug!(%peer, "connected");
-    let mut session = handler.session();
+    let mut session = handler.session(peer);
     let mut out = vec![0u8; limits.response_capacity];
     // Replies written but not yet flushed: a pipelining client gets them in
     // one write, a client waiting for its reply gets it before we wait.
@@ -395,6 +403,7 @@ pub async fn connection<S, H>(
             }
         }
     }
+    handler.closed(session);
     debug!(%peer, "disconnected");
 }
 
@@ -418,14 +427,14 @@ async fn on_frame<S: AsyncRead + AsyncWrite + Unpin, H: Handler>(
     unflushed: &mut usize,
 ) -> Flow {
     let outcome = match &frame {
-        Ok(WsMessage::Text(text)) => handler.handle(session, Message::Text(text.as_bytes()), out),
-        Ok(WsMessage::Binary(bytes)) => handler.handle(session, Message::Binary(bytes), out),
+        Ok(WsMessage::Text(text)) => handler.handle(session, Message::Text(text.as_bytes()), out).await,
+        Ok(WsMessage::Binary(bytes)) => handler.handle(session, Message::Binary(bytes), out).await,
         // tungstenite queued the pong (or the close reply) and sends it on
         // the next read; a close from the peer ends the stream right after.
         Ok(WsMessage::Ping(_) | WsMessage::Pong(_) | WsMessage::Close(_) | WsMessage::Frame(_)) => {
             return Flow::Continue;
         }
-        Err(WsError::Capacity(_)) => handler.handle(session, Message::Oversized, out),
+        Err(WsError::Capacity(_)) => handler.handle(session, Message::Oversized, out).await,
         Err(WsError::Utf8(_)) => return Flow::Close(WsCloseCode::Invalid, ""),
         Err(WsError::Protocol(e)) => {
             debug!(error = %e, "WebSocket protocol violation");
@@ -436,11 +445,12 @@ async fn on_frame<S: AsyncRead + AsyncWrite + Unpin, H: Handler>(
             return Flow::Done;
         }
     };
-    let (reply, code) = match outcome {
-        Outcome::Reply(text) => (Some(text), None),
-        Outcome::ReplyThenClose(text, code) => (Some(text), Some(code)),
-        Outcome::Close(code) => (None, Some(code)),
-    };
+    let (reply, code) = (outcome.reply(), outcome.close_code());
+    if let Outcome::Pending(ticket, _) = outcome {
+        // A handler must wait for its backend; this one broke that promise.
+        warn!(?ticket, "handler answered Pending; closing");
+        return Flow::Close(WsCloseCode::Error, "");
+    }
     if let Some(text) = reply {
         // Queued, not flushed: the connection loop flushes once no further
         // request is already waiting, and a close flushes first.

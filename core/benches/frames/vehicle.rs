@@ -3,7 +3,7 @@
 //! `embedded/core-only` includes this very file and its instruction counts
 //! are of the same work.
 
-use lluav_core::{Args, Backend, Command, Context, Failure, Fields, Payload};
+use lluav_core::{Args, Backend, Command, Context, Failure, Fields, Payload, Step};
 
 /// The same vehicle answers as the baseline's: a 12-field state, setpoint
 /// echo, waypoint ids, mission waypoint count.
@@ -15,7 +15,7 @@ impl Backend for Vehicle {
     fn armed(&self) -> bool {
         self.armed
     }
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         match cmd.args() {
             Args::None => {
                 out.object("state", |s| {
@@ -51,6 +51,6 @@ impl Backend for Vehicle {
             }
             _ => {}
         }
-        Ok(())
+        Ok(Step::Done)
     }
 }

@@ -3,7 +3,7 @@
 
 use lluav_core::{
     Args, Auth, Backend, Command, CommandId, Context, Failure, Fields, Grammar, Message, Outcome, Server,
-    Session,
+    Session, Step,
 };
 
 /// Fixed clock value for every response.
@@ -26,7 +26,7 @@ impl Backend for MockVehicle {
         self.armed
     }
 
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         self.executed.push(cmd.id());
         if let Some(f) = self.fail_with.take() {
             out.str("partial", "must be discarded");
@@ -48,7 +48,7 @@ impl Backend for MockVehicle {
             }
             _ => {}
         }
-        Ok(())
+        Ok(Step::Done)
     }
 
     fn password_changed(&mut self, new: &str) -> Result<(), Failure> {
@@ -123,6 +123,7 @@ pub fn send_bytes(server: &mut TestServer, session: &mut Session, msg: Message<'
         Outcome::Reply(r) => Seen::Reply(checked_json(r)),
         Outcome::ReplyThenClose(r, c) => Seen::ReplyThenClose(checked_json(r), c.code()),
         Outcome::Close(c) => Seen::Close(c.code()),
+        Outcome::Pending(t, _) => panic!("the mock vehicle never pends, yet got {t:?}"),
     }
 }
 

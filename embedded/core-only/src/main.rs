@@ -132,6 +132,7 @@ fn measure(server: &mut BenchServer, session: &mut Session, out: &mut [u8]) -> !
         match server.handle(session, Message::Text(text.as_bytes()), out) {
             Outcome::Reply(r) | Outcome::ReplyThenClose(r, _) => hprintln!("reply {}", r),
             Outcome::Close(code) => hprintln!("close {}", code.code()),
+            Outcome::Pending(ticket, _) => hprintln!("pending {}", ticket.0),
         }
         for _ in 0..REPS {
             lluav_mark_start();

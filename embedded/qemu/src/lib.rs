@@ -7,7 +7,7 @@
 use cortex_m_rt::{ExceptionFrame, exception};
 use cortex_m_semihosting::debug::{self, EXIT_FAILURE};
 use defmt_semihosting as _;
-use lluav_core::{Backend, Command, CommandId, Context, Failure, Fields};
+use lluav_core::{Backend, Command, CommandId, Context, Failure, Fields, Step};
 
 fn fail() -> ! {
     debug::exit(EXIT_FAILURE);
@@ -102,7 +102,7 @@ impl Backend for Vehicle {
         self.armed
     }
 
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         match cmd.id() {
             CommandId::Takeoff => self.armed = true,
             CommandId::Land | CommandId::Disarm => self.armed = false,
@@ -127,6 +127,6 @@ impl Backend for Vehicle {
             }
             _ => {}
         }
-        Ok(())
+        Ok(Step::Done)
     }
 }

@@ -16,7 +16,7 @@ use embassy_net::{Config as NetConfig, Ipv4Address, Ipv4Cidr, Stack, StackResour
 use embassy_net_driver_channel::{self as ch, driver::HardwareAddress, driver::LinkState};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_time::{Duration, with_timeout};
-use lluav_core::{Args, Auth, Backend, Command, CommandId, Context as Ctx, Failure, Fields, Server};
+use lluav_core::{Args, Auth, Backend, Command, CommandId, Context as Ctx, Failure, Fields, Server, Step};
 use lluav_embedded::{Config, Service, SharedServer, Slot, serve};
 
 pub const SERVER_IP: Ipv4Address = Ipv4Address::new(10, 53, 0, 1);
@@ -128,7 +128,7 @@ impl Backend for Vehicle {
         self.armed
     }
 
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Ctx, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Ctx, out: &mut Fields<'_>) -> Result<Step, Failure> {
         match (cmd.id(), cmd.args()) {
             (CommandId::Takeoff, _) => self.armed = true,
             (CommandId::Land | CommandId::Disarm, _) => self.armed = false,
@@ -145,7 +145,7 @@ impl Backend for Vehicle {
             }
             _ => return Err(Failure::unsupported("not in the test vehicle")),
         }
-        Ok(())
+        Ok(Step::Done)
     }
 }
 

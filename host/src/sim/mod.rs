@@ -28,7 +28,7 @@ use std::panic::{self, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use lluav_core::{Args, Backend, Command, CommandId, Context, Failure, Fields, Payload};
+use lluav_core::{Args, Backend, Command, CommandId, Context, Failure, Fields, Payload, Step};
 
 use crate::recent_log::RecentLog;
 use devices::{Devices, Target};
@@ -680,7 +680,7 @@ impl Backend for Simulator {
         self.flight.mode().armed()
     }
 
-    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), Failure> {
+    fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         let result = panic::catch_unwind(AssertUnwindSafe(|| {
             let r = self.run(cmd, ctx, out);
             // Commands such as set_sp_ned or land end routes: settle the
@@ -690,7 +690,7 @@ impl Backend for Simulator {
             r
         }));
         match result {
-            Ok(Ok(())) => Ok(()),
+            Ok(Ok(())) => Ok(Step::Done),
             Ok(Err(e)) => {
                 tracing::debug!(cmd = cmd.id().name(), error = %e, "command failed");
                 Err(e.to_failure())
