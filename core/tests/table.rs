@@ -120,15 +120,20 @@ fn ids_follow_the_first_appearance_in_the_spec() {
     }
 }
 
-#[test]
-fn every_command_of_the_spec_reference_is_in_the_table() {
+/// The spec's Command Reference, as (heading, command name) in reading
+/// order: every table row's first cell that looks like a command name.
+fn reference_rows() -> Vec<(&'static str, &'static str)> {
     let spec = include_str!("../../docs/lluav-websocket-protocol.md");
     let reference = spec
         .split("## Command Reference")
         .nth(1)
         .expect("the spec has a Command Reference");
-    let mut seen = Vec::new();
+    let mut heading = "";
+    let mut rows = Vec::new();
     for line in reference.lines() {
+        if let Some(h) = line.strip_prefix("### ") {
+            heading = h.trim();
+        }
         let Some(rest) = line.strip_prefix("| ") else {
             continue;
         };
@@ -138,12 +143,27 @@ fn every_command_of_the_spec_reference_is_in_the_table() {
                 .bytes()
                 .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
             && !["ret", "cmd", "ts"].contains(&name);
-        if is_command && !seen.contains(&name) {
-            seen.push(name);
+        if is_command {
+            rows.push((heading, name));
         }
     }
-    let mut names: Vec<&str> = vec!["login"];
-    names.extend(seen);
+    rows
+}
+
+/// Each command of the reference once, where it first appears.
+fn first_appearances() -> Vec<(&'static str, &'static str)> {
+    let mut seen: Vec<(&str, &str)> = vec![("Authentication", "login")];
+    for (heading, name) in reference_rows() {
+        if !seen.iter().any(|(_, n)| *n == name) {
+            seen.push((heading, name));
+        }
+    }
+    seen
+}
+
+#[test]
+fn every_command_of_the_spec_reference_is_in_the_table() {
+    let names: Vec<&str> = first_appearances().into_iter().map(|(_, n)| n).collect();
     let table: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
     assert_eq!(
         table, names,
@@ -153,12 +173,8 @@ fn every_command_of_the_spec_reference_is_in_the_table() {
 
 #[test]
 fn every_command_stands_in_the_section_where_the_spec_first_lists_it() {
-    let spec = include_str!("../../docs/lluav-websocket-protocol.md");
-    let reference = spec
-        .split("## Command Reference")
-        .nth(1)
-        .expect("the spec has a Command Reference");
-    let heading = |h: &str| match h {
+    let section = |h: &str| match h {
+        "Authentication" => Section::Authentication,
         "State & Telemetry" => Section::State,
         "Flight Control" => Section::Flight,
         "Mission Management" => Section::Mission,
@@ -172,23 +188,11 @@ fn every_command_stands_in_the_section_where_the_spec_first_lists_it() {
         "Other" => Section::Other,
         other => panic!("a heading the table has no section for: {other}"),
     };
-    let mut first_seen: Vec<(&str, Section)> = vec![("login", Section::Authentication)];
-    let mut current = None;
-    for line in reference.lines() {
-        if let Some(h) = line.strip_prefix("### ") {
-            current = Some(heading(h.trim()));
-        } else if let (Some(rest), Some(section)) = (line.strip_prefix("| "), current) {
-            let name = rest.split(' ').next().unwrap_or("");
-            if CommandId::from_name(name).is_some() && !first_seen.iter().any(|(n, _)| *n == name) {
-                first_seen.push((name, section));
-            }
-        }
-    }
-    assert_eq!(first_seen.len(), TABLE.len());
-    for (name, section) in first_seen {
+    let first = first_appearances();
+    assert_eq!(first.len(), TABLE.len());
+    for (heading, name) in first {
         let id = CommandId::from_name(name).expect("a known name");
-        assert_eq!(id.section(), section, "{name}");
-        assert_eq!(id.spec().section, section, "{name}");
+        assert_eq!(id.section(), section(heading), "{name}");
     }
 }
 
