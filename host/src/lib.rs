@@ -6,13 +6,17 @@
 //!   connection goes through;
 //! - [`config`]: `lluavd`'s command line and config file;
 //! - [`client`]: the typed async client `lluav` is built on;
-//! - [`sim`] and [`recent_log`]: the simulated vehicle and the log it shows.
+//! - [`onboard`]: the daemon's backend, a [`companion`] computer and a
+//!   vehicle (the simulator, [`sim`]) composed;
+//! - [`recent_log`]: the log `showmsg` shows.
 
 #![warn(missing_docs)]
 
 pub mod client;
+pub mod companion;
 pub mod config;
 pub mod daemon;
+pub mod onboard;
 pub mod recent_log;
 pub mod sim;
 pub mod ws;

@@ -28,7 +28,7 @@ fn sample_args(spec: &Spec) -> &'static str {
         Grammar::Amount => "12.5",
         Grammar::Angle => "10",
         Grammar::Name => "t1",
-        Grammar::Path if spec.id == CommandId::SetMappath => "maps/t1",
+        Grammar::Path if spec.id == CommandId::SetMappath => "t1",
         Grammar::Path => "missions/m.json",
         Grammar::Text => "p1",
         Grammar::Secret | Grammar::NewPassword => "newpass1",
@@ -186,9 +186,18 @@ fn led_commands_follow_enable_and_disable() {
 fn apron_and_utg_refuse_values_the_devices_cannot_take() {
     let mut h = Harness::new(1.0);
     assert_eq!(h.ok("apron_vol 48")["apron_status"]["voltage"], 48.0);
-    assert_eq!(h.fails("apron_vol 61", -1), "voltage 61 above 60");
-    assert_eq!(h.fails("apron_amp 31", -1), "amperage 31 above 30");
-    assert_eq!(h.fails("utg_set 0", -1), "UTG sonic speed must be above 0");
+    assert_eq!(
+        h.fails("apron_vol 61", -2),
+        "Invalid arguments: voltage 61 above 60"
+    );
+    assert_eq!(
+        h.fails("apron_amp 31", -2),
+        "Invalid arguments: amperage 31 above 30"
+    );
+    assert_eq!(
+        h.fails("utg_set 0", -2),
+        "Invalid arguments: UTG sonic speed must be above 0"
+    );
     assert_eq!(h.ok("utg_set 6000")["utg"]["thickness_mm"], 10.2);
 }
 

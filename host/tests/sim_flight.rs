@@ -110,9 +110,13 @@ fn setpoints_are_tracked_at_bounded_speed_in_ned() {
 fn setpoints_outside_the_fence_or_underground_are_refused() {
     let mut h = Harness::new(1.0);
     h.airborne();
-    assert!(h.fails("set_sp_ned 0:0:1:0", -1).contains("below the ground"));
-    assert!(h.fails("set_sp_ned 900:0:-2:0", -1).contains("geofence_radius"));
-    assert!(h.fails("set_sp_ned 0:0:-200:0", -1).contains("max_alt"));
+    assert_eq!(
+        h.fails("set_sp_ned 0:0:1:0", -2),
+        "Invalid arguments: z = 1 is below the ground (NED: up is negative)"
+    );
+    assert!(h.fails("set_sp_ned 900:0:-2:0", -2).contains("geofence_radius"));
+    assert!(h.fails("set_sp_ned 0:0:-200:0", -2).contains("max_alt"));
+    assert!(h.fails("zyhk 0.5,300", -2).contains("max_alt"));
 }
 
 #[test]
@@ -149,10 +153,36 @@ fn rtl_flies_home_then_lands_and_mrtl_retraces_the_mission() {
 }
 
 #[test]
-fn rtl_on_the_ground_is_refused_but_land_is_idempotent() {
-    let mut h = Harness::new(1.0);
-    assert_eq!(h.fails("rtl", -1), "Vehicle is not flying");
-    assert_eq!(h.ok("land")["fsm"], "disarmed");
+fn only_takeoff_leaves_the_ground_every_other_flight_command_answers_not_flying() {
+    let mut h = Harness::new(10.0);
+    h.ok(r#"mission 3:{"waypoints":[{"x":2,"y":0,"z":-2}]}"#);
+    let moving = [
+        "land",
+        "tether_land",
+        "rtl",
+        "mrtl",
+        "set_sp_ned 1:0:-2:0",
+        "zyhk 1.5,3",
+        "mw_exec 3:1",
+    ];
+    let before = h.state();
+    for frame in moving {
+        assert_eq!(h.fails(frame, -1), "Vehicle is not flying", "{frame}");
+    }
+    assert_eq!(h.state(), before, "nothing changed");
+    // Landed but still armed (the second before it disarms): still not
+    // flying, and takeoff is refused by the armed gate.
+    h.airborne();
+    h.ok("land");
+    h.run_until_fsm("armed", 20.0);
+    for frame in moving {
+        assert_eq!(h.fails(frame, -1), "Vehicle is not flying", "{frame}");
+    }
+    assert_eq!(h.fails("takeoff", -1), "Not allow when vehicle is ARMED!");
+    // In the air, landing twice is fine.
+    h.run_until_fsm("disarmed", 2.0);
+    h.airborne();
+    assert_eq!(h.ok("land")["fsm"], "landing");
     assert_eq!(h.ok("tether_land")["tethered"], true);
 }
 
@@ -179,6 +209,7 @@ fn autosleep_puts_an_idle_vehicle_to_sleep() {
 #[test]
 fn zyhk_hovers_at_each_height_then_lands() {
     let mut h = Harness::new(1.0);
+    h.airborne();
     let r = h.ok("zyhk 1.5,3 4,0,0");
     assert_eq!(r["fsm"], "mission");
     assert_eq!(h.state()["armed"], true);

@@ -13,23 +13,23 @@ fn set_param_validates_type_and_range_naming_the_parameter() {
     let mut h = Harness::new(1.0);
     assert_eq!(
         h.fails("set_param takeoff_alt:high", -2),
-        "takeoff_alt: expected float, got 'high'"
+        "Invalid arguments: takeoff_alt expects float, got 'high'"
     );
     assert_eq!(
-        h.fails("set_param takeoff_alt:500", -1),
-        "takeoff_alt: 500 out of range 0.5..120"
+        h.fails("set_param takeoff_alt:500", -2),
+        "Invalid arguments: takeoff_alt 500 out of range 0.5..120"
     );
     assert_eq!(
         h.fails("set_param autosleep_after:2.5", -2),
-        "autosleep_after: expected int, got '2.5'"
+        "Invalid arguments: autosleep_after expects int, got '2.5'"
     );
     assert_eq!(
-        h.fails("set_param warp_drive:1", -1),
-        "Unknown parameter: warp_drive"
+        h.fails("set_param warp_drive:1", -2),
+        "Invalid arguments: unknown parameter warp_drive"
     );
     assert_eq!(
-        h.fails("get_param warp_drive", -1),
-        "Unknown parameter: warp_drive"
+        h.fails("get_param warp_drive", -2),
+        "Invalid arguments: unknown parameter warp_drive"
     );
     let r = h.ok("set_param takeoff_alt:5");
     assert_eq!(
@@ -49,7 +49,7 @@ fn saved_parameters_survive_a_restart_and_unsaved_ones_do_not() {
         h.ok("set_param rtl_land:0");
         assert_eq!(h.ok("save_param 1")["saved"], true);
         h.ok("set_param cruise_speed:1");
-        h.server.backend_mut().flush().unwrap();
+        h.flush();
     }
     let mut h = Harness::open(&dir, 1.0, None);
     let p = h.ok("param")["param"].clone();
@@ -61,17 +61,23 @@ fn saved_parameters_survive_a_restart_and_unsaved_ones_do_not() {
 }
 
 #[test]
-fn save_param_zero_discards_and_reset_param_restores_defaults() {
+fn save_param_zero_saves_nothing_discards_nothing_and_names_the_unsaved() {
     let mut h = Harness::new(1.0);
     h.ok("set_param climb_speed:2");
     h.ok("save_param 1");
     h.ok("set_param climb_speed:3");
     h.ok("set_param yaw_rate:2");
-    assert_eq!(h.ok("save_param 0")["discarded"], 2);
-    assert_eq!(h.ok("get_param climb_speed")["param"]["climb_speed"], 2.0);
+    let r = h.ok("save_param 0");
+    assert_eq!(r["saved"], false);
+    assert_eq!(r["unsaved"], serde_json::json!(["climb_speed", "yaw_rate"]));
+    assert_eq!(h.ok("get_param climb_speed")["param"]["climb_speed"], 3.0);
     assert_eq!(h.ok("reset_param")["param"]["climb_speed"], 1.0);
-    assert_eq!(h.ok("save_param 0")["discarded"], 1);
-    assert_eq!(h.ok("get_param climb_speed")["param"]["climb_speed"], 2.0);
+    assert_eq!(
+        h.ok("save_param 0")["unsaved"],
+        serde_json::json!(["climb_speed"])
+    );
+    h.ok("save_param 1");
+    assert_eq!(h.ok("save_param 0")["unsaved"], serde_json::json!([]));
 }
 
 #[test]
@@ -79,13 +85,15 @@ fn passwd_persists_the_password_for_the_next_start() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("data");
     {
-        let mut h = Harness::open(&dir, 1.0, Some("first1"));
-        h.ok("login first1");
+        let mut h = Harness::open(&dir, 1.0, None);
+        h.ok("passwd first1");
         h.ok("passwd second2");
-        assert_eq!(h.server.backend().stored_password().as_deref(), Some("second2"));
+        assert_eq!(h.stored_password().as_deref(), Some("second2"));
     }
-    let h = Harness::open(&dir, 1.0, None);
-    assert_eq!(h.server.backend().stored_password().as_deref(), Some("second2"));
+    let mut h = Harness::open(&dir, 1.0, None);
+    assert_eq!(h.stored_password().as_deref(), Some("second2"));
+    assert_eq!(h.fails("state", -1), "Login first!");
+    h.ok("login second2");
     let file = h.dir.join("password");
     use std::os::unix::fs::PermissionsExt;
     assert_eq!(
@@ -106,6 +114,7 @@ fn symlinks_leaving_the_data_dir_are_refused() {
     let mut h = Harness::new(1.0);
     symlink(outside.path(), h.dir.join("escape")).unwrap();
     symlink(outside.path().join("m.json"), h.dir.join("maps/evil")).unwrap();
+    symlink(outside.path(), h.dir.join("maps/escape")).unwrap();
     symlink(outside.path().join("imgs"), h.dir.join("images/evil")).unwrap();
     let refused = |m: String| {
         assert!(
@@ -139,10 +148,13 @@ fn missions_are_accepted_from_json_or_files_and_refused_with_a_reason() {
     assert_eq!(wps[1]["id"], 9);
     assert_eq!(wps[0]["yaw"], 0.5);
     assert!(
-        h.fails(r#"mission 4:{"waypoints":[{"x":1,"y":2}]}"#, -1)
+        h.fails(r#"mission 4:{"waypoints":[{"x":1,"y":2}]}"#, -2)
             .contains("missing field `z`")
     );
-    assert!(h.fails(r#"mission 4:{"wp":[]}"#, -1).starts_with("Bad mission:"));
+    assert!(
+        h.fails(r#"mission 4:{"wp":[]}"#, -2)
+            .starts_with("Invalid arguments: bad mission:")
+    );
     assert_eq!(
         h.fails("mission 4:missions/none.json", -1),
         "Not found: missions/none.json"
@@ -232,11 +244,11 @@ fn maps_are_files_that_can_be_listed_chosen_and_removed() {
     let map: serde_json::Value =
         serde_json::from_slice(&std::fs::read(h.dir.join("maps/site_a")).unwrap()).unwrap();
     assert_eq!(map["name"], "site_a");
-    h.ok("set_mappath maps/site_a");
-    assert_eq!(h.ok("get_submap_info")["kfs"]["map_id"], "maps/site_a");
-    assert_eq!(h.fails("set_mappath maps/none", -1), "Not found: maps/none");
+    h.ok("set_mappath site_a");
+    assert_eq!(h.ok("get_submap_info")["kfs"]["map_id"], "site_a");
+    assert_eq!(h.fails("set_mappath none", -1), "Not found: none");
     h.ok("rm_map site_a");
-    assert_eq!(h.ok("get_submap_info")["kfs"]["map_id"], "live");
+    assert_eq!(h.ok("get_submap_info")["kfs"]["map_id"], serde_json::Value::Null);
     assert_eq!(h.fails("rm_map site_a", -1), "Not found: site_a");
     assert!(!h.dir.join("maps/site_a").exists());
 }
@@ -297,7 +309,7 @@ fn a_recording_bag_is_kept_by_clear_bags_and_flushed_on_shutdown() {
     let bag = h.ok("savebag 1")["bag"].as_str().unwrap().to_owned();
     h.run_for(1.0);
     assert_eq!(h.ok("clear_bags")["removed"], serde_json::json!([]));
-    h.server.backend_mut().flush().unwrap();
+    h.flush();
     let text = std::fs::read_to_string(h.dir.join("bags").join(&bag)).unwrap();
     assert_eq!(text.lines().count(), 11, "header and ten samples: {text}");
 }

@@ -1,12 +1,18 @@
-//! Why the simulator refused or failed a command, and the `ret` each answer
-//! carries. The text a client sees is the `Display` of these variants.
+//! Why the simulated vehicle refused or failed a command, and the `ret`
+//! each answer carries (DESIGN.md, "Errors"): -2 `Invalid arguments:
+//! <reason>` for a value the vehicle refuses, -1 for the vehicle's state,
+//! -3 for failed I/O. The text a client sees is the `Display` of these
+//! variants, written whole into the response.
 
-use lluav_core::{Failure, Ret};
+use lluav_core::Ret;
+
+use crate::companion;
+use crate::onboard::Refusal;
 
 /// A command the simulated vehicle did not carry out.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
-    /// The command needs the vehicle in the air.
+    /// The command moves a flying vehicle; this one is on the ground.
     #[error("Vehicle is not flying")]
     NotFlying,
     /// The vehicle sleeps; `wakeup` first.
@@ -24,14 +30,18 @@ pub enum SimError {
     /// A plan holds the plan lock.
     #[error("Plan locked: unlock_plan first")]
     PlanLocked,
-    /// A setpoint or waypoint outside the flyable volume.
-    #[error("{0}")]
-    OutsideFence(String),
+    /// LED control is disabled.
+    #[error("LED control is disabled: ledenable first")]
+    LedDisabled,
+    /// A value the vehicle refuses: outside the fence, out of a device's
+    /// range.
+    #[error("Invalid arguments: {0}")]
+    Refused(String),
     /// No such parameter.
-    #[error("Unknown parameter: {0}")]
+    #[error("Invalid arguments: unknown parameter {0}")]
     UnknownParam(String),
     /// A parameter value of the wrong type.
-    #[error("{name}: expected {expected}, got '{value}'")]
+    #[error("Invalid arguments: {name} expects {expected}, got '{value}'")]
     ParamType {
         /// Parameter name.
         name: String,
@@ -41,7 +51,7 @@ pub enum SimError {
         value: String,
     },
     /// A parameter value outside its range.
-    #[error("{name}: {value} out of range {min}..{max}")]
+    #[error("Invalid arguments: {name} {value} out of range {min}..{max}")]
     ParamRange {
         /// Parameter name.
         name: String,
@@ -53,7 +63,7 @@ pub enum SimError {
         max: f64,
     },
     /// A mission payload the simulator cannot fly.
-    #[error("Bad mission: {0}")]
+    #[error("Invalid arguments: bad mission: {0}")]
     Mission(String),
     /// No mission with this external id.
     #[error("Unknown mission: {0}")]
@@ -61,49 +71,37 @@ pub enum SimError {
     /// Waypoint ids the mission does not have.
     #[error("Unknown waypoint ids: {0}")]
     UnknownWaypoints(String),
-    /// A value the simulated device does not accept.
-    #[error("{0}")]
-    Refused(String),
-    /// A named file or directory does not exist.
+    /// Something the command names does not exist (yet).
     #[error("Not found: {0}")]
     NotFound(String),
-    /// A client path resolves outside the data directory.
-    #[error("Refused: {0} leaves the data directory")]
-    Escapes(String),
-    /// A command the protocol core answers itself reached the simulator.
-    #[error("{0} is not handled by the simulator")]
-    NotBackend(&'static str),
-    /// Disk I/O failed.
-    #[error("{what}: {err}")]
-    Io {
-        /// What was being done.
-        what: String,
-        /// The error.
-        err: std::io::Error,
-    },
+    /// The companion computer's files refused or failed.
+    #[error(transparent)]
+    Files(#[from] companion::Error),
+    /// A command the vehicle does not own reached it: a routing bug,
+    /// answered as a fault.
+    #[error("Unhandled exception")]
+    NotOwned(&'static str),
 }
 
 impl SimError {
     /// An I/O failure while doing `what`.
-    pub fn io(what: impl Into<String>, err: std::io::Error) -> Self {
-        SimError::Io {
-            what: what.into(),
-            err,
-        }
+    pub(crate) fn io(what: impl Into<String>, err: std::io::Error) -> Self {
+        SimError::Files(companion::Error::io(what, err))
     }
+}
 
-    /// The `ret` this failure is answered with.
-    pub fn ret(&self) -> Ret {
+impl Refusal for SimError {
+    fn ret(&self) -> Ret {
         match self {
-            SimError::ParamType { .. } | SimError::NotBackend(_) => Ret::InvalidArgs,
-            SimError::Io { .. } => Ret::SystemCall,
+            SimError::Refused(_)
+            | SimError::UnknownParam(_)
+            | SimError::ParamType { .. }
+            | SimError::ParamRange { .. }
+            | SimError::Mission(_) => Ret::InvalidArgs,
+            SimError::Files(e) => e.ret(),
+            SimError::NotOwned(_) => Ret::Unhandled,
             _ => Ret::Failed,
         }
-    }
-
-    /// The protocol failure a client sees.
-    pub fn to_failure(&self) -> Failure {
-        Failure::fmt(self.ret(), format_args!("{self}"))
     }
 }
 

@@ -3,42 +3,43 @@
 
 use serde::Deserialize;
 
-use lluav_core::Fields;
+use lluav_core::{Args, Command, CommandId, Fields};
 
 use super::error::{SimError, SimResult};
-use super::fsm::{Ned, RouteEvent};
+use super::flight::RouteEvent;
+use crate::onboard::Ned;
 
 /// Most waypoints one mission may hold.
-pub const MAX_WAYPOINTS: usize = 1000;
+const MAX_WAYPOINTS: usize = 1000;
 /// Most missions (and results, and reports) kept; the oldest go first.
-pub const MAX_KEPT: usize = 64;
+const MAX_KEPT: usize = 64;
 
 /// A mission waypoint, NED metres and radians.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Waypoint {
+pub(crate) struct Waypoint {
     /// Its id: given, or its 1-based position in the list.
     #[serde(default)]
-    pub id: Option<u32>,
+    id: Option<u32>,
     /// North.
-    pub x: f64,
+    x: f64,
     /// East.
-    pub y: f64,
+    y: f64,
     /// Down (negative is up).
-    pub z: f64,
+    z: f64,
     /// Heading on arrival, if any.
     #[serde(default)]
-    pub yaw: Option<f64>,
+    pub(crate) yaw: Option<f64>,
 }
 
 impl Waypoint {
     /// The position.
-    pub fn ned(&self) -> Ned {
+    pub(crate) fn ned(&self) -> Ned {
         Ned::new(self.x, self.y, self.z)
     }
 
     /// The id (always set after [`parse`]).
-    pub fn wp_id(&self) -> u32 {
+    pub(crate) fn wp_id(&self) -> u32 {
         self.id.unwrap_or(0)
     }
 
@@ -54,26 +55,39 @@ impl Waypoint {
     }
 }
 
+/// DESIGN.md's mission JSON, `{"waypoints":[...]}`.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
-struct MissionJson {
+struct Waypoints {
     waypoints: Vec<Waypoint>,
 }
 
 /// Where the simulator may fly: a cylinder around home.
 #[derive(Clone, Copy, Debug)]
-pub struct Fence {
+pub(crate) struct Fence {
     /// Home.
-    pub home: Ned,
+    pub(crate) home: Ned,
     /// Largest horizontal distance from home, m.
-    pub radius: f64,
+    pub(crate) radius: f64,
     /// Highest altitude above home, m.
-    pub max_alt: f64,
+    pub(crate) max_alt: f64,
 }
 
 impl Fence {
-    /// Why `p` is not flyable, if it is not.
-    pub fn check(&self, p: Ned) -> Result<(), String> {
+    /// No limits at all.
+    pub(crate) const NONE: Fence = Fence {
+        home: Ned {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+        },
+        radius: f64::INFINITY,
+        max_alt: f64::INFINITY,
+    };
+
+    /// Why `p` is not flyable, if it is not. Coordinates are written as the
+    /// `f32` a client sends.
+    pub(crate) fn check(&self, p: Ned) -> Result<(), String> {
         let dist = ((p.x - self.home.x).powi(2) + (p.y - self.home.y).powi(2)).sqrt();
         if dist > self.radius {
             return Err(format!(
@@ -82,27 +96,29 @@ impl Fence {
             ));
         }
         if p.z > 0.0 {
-            return Err(format!("z = {} is below the ground (NED: up is negative)", p.z));
+            let z = p.z as f32;
+            return Err(format!("z = {z} is below the ground (NED: up is negative)"));
         }
         if -p.z > self.max_alt {
-            return Err(format!("altitude {} m above max_alt {}", -p.z, self.max_alt));
+            let alt = -p.z as f32;
+            return Err(format!("altitude {alt} m above max_alt {}", self.max_alt));
         }
         Ok(())
     }
 }
 
-/// Parses DESIGN.md's mission JSON and checks every waypoint against the
-/// fence. Waypoints without an id get their 1-based position.
-pub fn parse(text: &str, fence: &Fence) -> SimResult<Vec<Waypoint>> {
-    // serde would also take a struct from an array; DESIGN.md's format is
-    // an object, so say so instead of reporting a confusing field error.
-    if !text.trim_start().starts_with('{') {
-        return Err(SimError::Mission(
-            r#"expected an object {"waypoints":[...]}"#.into(),
-        ));
+/// Parses DESIGN.md's mission JSON (or a top-level array of waypoints)
+/// and checks every waypoint against the fence. Waypoints without an id
+/// get their 1-based position.
+pub(crate) fn parse(text: &str, fence: &Fence) -> SimResult<Vec<Waypoint>> {
+    // serde would also read the object from an array of its fields, so
+    // the first character decides which of the two shapes this is.
+    let mut wps = if text.trim_start().starts_with('[') {
+        serde_json::from_str::<Vec<Waypoint>>(text)
+    } else {
+        serde_json::from_str::<Waypoints>(text).map(|w| w.waypoints)
     }
-    let json: MissionJson = serde_json::from_str(text).map_err(|e| SimError::Mission(e.to_string()))?;
-    let mut wps = json.waypoints;
+    .map_err(|e| SimError::Mission(e.to_string()))?;
     if wps.is_empty() {
         return Err(SimError::Mission("no waypoints".into()));
     }
@@ -127,7 +143,7 @@ pub fn parse(text: &str, fence: &Fence) -> SimResult<Vec<Waypoint>> {
 
 /// Where a mission came from.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub enum Source {
+pub(crate) enum Source {
     /// Inline JSON.
     Json,
     /// A file under the data directory.
@@ -138,20 +154,20 @@ pub enum Source {
 
 /// A submitted mission.
 #[derive(Clone, Debug)]
-pub struct Mission {
+pub(crate) struct Mission {
     /// External id (`mission`), or 0 for an AI1 task.
-    pub ext_id: u32,
+    pub(crate) ext_id: u32,
     /// Where it came from.
-    pub source: Source,
+    pub(crate) source: Source,
     /// Its waypoints.
-    pub waypoints: Vec<Waypoint>,
+    pub(crate) waypoints: Vec<Waypoint>,
     /// When it was received, ms since the Unix epoch.
-    pub received_ms: i64,
+    pub(crate) received_ms: i64,
 }
 
 /// How a waypoint run went.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Status {
+pub(crate) enum Status {
     /// Still flying.
     Running,
     /// Every waypoint reached.
@@ -175,19 +191,19 @@ impl Status {
 
 /// One `mw_exec`.
 #[derive(Clone, Debug)]
-pub struct Run {
+pub(crate) struct Run {
     /// The mission.
-    pub ext_id: u32,
+    pub(crate) ext_id: u32,
     /// The flight model's route id.
-    pub route: u64,
+    pub(crate) route: u64,
     /// Waypoints asked for, in order.
-    pub wp_ids: Vec<u32>,
+    pub(crate) wp_ids: Vec<u32>,
     /// Waypoints reached so far.
-    pub reached: Vec<u32>,
+    pub(crate) reached: Vec<u32>,
     /// How it went.
-    pub status: Status,
+    pub(crate) status: Status,
     /// When it started, ms since the Unix epoch.
-    pub started_ms: i64,
+    pub(crate) started_ms: i64,
 }
 
 impl Run {
@@ -210,33 +226,33 @@ impl Run {
 
 /// An `abort_report`.
 #[derive(Clone, Debug)]
-pub struct AbortReport {
+pub(crate) struct AbortReport {
     /// The id the client gave, or the next free one.
-    pub abort_id: u32,
+    pub(crate) abort_id: u32,
     /// The run it ended, if one was running.
-    pub ext_id: Option<u32>,
+    pub(crate) ext_id: Option<u32>,
     /// Waypoints reached before the abort.
-    pub reached: usize,
+    pub(crate) reached: usize,
     /// Waypoints the run had.
-    pub total: usize,
+    pub(crate) total: usize,
     /// When, ms since the Unix epoch.
-    pub at_ms: i64,
+    pub(crate) at_ms: i64,
 }
 
 /// All mission bookkeeping.
 #[derive(Debug, Default)]
-pub struct Missions {
+pub(crate) struct Missions {
     missions: Vec<Mission>,
     runs: Vec<Run>,
     reports: Vec<AbortReport>,
     /// The current task name.
-    pub taskname: Option<String>,
+    taskname: Option<String>,
     /// Obstacle mission live mode.
-    pub obs_live: bool,
-    /// The running plan and whether it holds the plan lock.
-    pub plan: Option<String>,
+    obs_live: bool,
+    /// The plan last started.
+    plan: Option<String>,
     /// Whether the plan lock is held.
-    pub plan_locked: bool,
+    plan_locked: bool,
 }
 
 /// Whether `b` replaces `a`: same external id, or same AI1 task id.
@@ -256,15 +272,59 @@ fn push_bounded<T>(v: &mut Vec<T>, item: T) {
 }
 
 impl Missions {
+    /// The commands that only keep books: `plan`, `unlock_plan`,
+    /// `mw_list`, `obs_mission`, `dump_missionresult`, `dump_missionlist`,
+    /// `set_taskname`.
+    pub(crate) fn run(&mut self, cmd: &Command<'_>, out: &mut Fields<'_>) -> SimResult {
+        match (cmd.id(), cmd.args()) {
+            (CommandId::Plan, Args::Text(plan)) => {
+                if self.plan_locked {
+                    return Err(SimError::PlanLocked);
+                }
+                (self.plan, self.plan_locked) = (Some((*plan).to_owned()), true);
+                tracing::info!(plan, "plan started");
+                out.str("plan", plan).bool("plan_lock", true);
+            }
+            (CommandId::UnlockPlan, _) => {
+                self.plan_locked = false;
+                out.bool("plan_lock", false);
+            }
+            (CommandId::MwList, _) => self.write_latest(out),
+            (CommandId::ObsMission, &Args::Flag(on)) => {
+                self.obs_live = on;
+                out.bool("obs_mission", on);
+            }
+            (CommandId::DumpMissionresult, &Args::OptCount(ext_id)) => self.write_result(ext_id, out)?,
+            (CommandId::SetTaskname, Args::Text(name)) => {
+                self.taskname = Some((*name).to_owned());
+                out.str("taskname", name);
+            }
+            _ => self.write_list(out),
+        }
+        Ok(())
+    }
+
+    /// Writes the bookkeeping's members of `state`.
+    pub(crate) fn write_state(&self, s: &mut Fields<'_>) {
+        s.bool("plan_lock", self.plan_locked)
+            .bool("obs_mission", self.obs_live);
+        for (key, value) in [("plan", &self.plan), ("taskname", &self.taskname)] {
+            match value {
+                Some(v) => s.str(key, v),
+                None => s.null(key),
+            };
+        }
+    }
+
     /// Stores a mission, replacing one with the same external id (or the
     /// same AI1 task id).
-    pub fn submit(&mut self, mission: Mission) {
+    pub(crate) fn submit(&mut self, mission: Mission) {
         self.missions.retain(|m| !same_slot(m, &mission));
         push_bounded(&mut self.missions, mission);
     }
 
     /// The mission with this external id.
-    pub fn get(&self, ext_id: u32) -> SimResult<&Mission> {
+    pub(crate) fn get(&self, ext_id: u32) -> SimResult<&Mission> {
         self.missions
             .iter()
             .rev()
@@ -272,14 +332,25 @@ impl Missions {
             .ok_or(SimError::UnknownMission(ext_id))
     }
 
-    /// The most recently submitted mission.
-    pub fn latest(&self) -> Option<&Mission> {
-        self.missions.last()
+    /// Writes the most recently submitted mission's id and waypoints.
+    fn write_latest(&self, out: &mut Fields<'_>) {
+        match self.missions.last() {
+            Some(m) => {
+                out.u64("ext_id", m.ext_id.into()).array("waypoints", |a| {
+                    for wp in &m.waypoints {
+                        a.object(|o| wp.write(o));
+                    }
+                });
+            }
+            None => {
+                out.null("ext_id").array("waypoints", |_| {});
+            }
+        }
     }
 
     /// The waypoints of `ext_id` with these ids, in the order asked, or the
     /// ids it does not have.
-    pub fn select(&self, ext_id: u32, ids: &[u32]) -> SimResult<Vec<Waypoint>> {
+    pub(crate) fn select(&self, ext_id: u32, ids: &[u32]) -> SimResult<Vec<Waypoint>> {
         let mission = self.get(ext_id)?;
         let find = |id: u32| mission.waypoints.iter().find(|w| w.wp_id() == id).copied();
         let missing: Vec<String> = ids
@@ -294,17 +365,12 @@ impl Missions {
     }
 
     /// Records a new run.
-    pub fn start_run(&mut self, run: Run) {
+    pub(crate) fn start_run(&mut self, run: Run) {
         push_bounded(&mut self.runs, run);
     }
 
-    /// The running run, if any.
-    pub fn active(&self) -> Option<&Run> {
-        self.runs.last().filter(|r| r.status == Status::Running)
-    }
-
     /// Applies the flight model's route events to the runs.
-    pub fn apply(&mut self, events: &[RouteEvent]) {
+    pub(crate) fn apply(&mut self, events: &[RouteEvent]) {
         for event in events {
             let (RouteEvent::Reached { route, .. }
             | RouteEvent::Finished { route }
@@ -326,7 +392,7 @@ impl Missions {
     }
 
     /// Marks the running run aborted and records a report.
-    pub fn abort(&mut self, abort_id: Option<u32>, now_ms: i64) -> AbortReport {
+    pub(crate) fn abort(&mut self, abort_id: Option<u32>, now_ms: i64) -> AbortReport {
         let run = self.runs.last_mut().filter(|r| r.status == Status::Running);
         let (ext_id, reached, total) = match run {
             Some(r) => {
@@ -349,7 +415,7 @@ impl Missions {
 
     /// Writes `mission_result` for `ext_id` (or the latest run): `null`
     /// when nothing ran yet and no id was asked for.
-    pub fn write_result(&self, ext_id: Option<u32>, out: &mut Fields<'_>) -> SimResult {
+    fn write_result(&self, ext_id: Option<u32>, out: &mut Fields<'_>) -> SimResult {
         let run = self
             .runs
             .iter()
@@ -368,7 +434,7 @@ impl Missions {
     }
 
     /// Writes `missions`: every stored mission, shortly.
-    pub fn write_list(&self, out: &mut Fields<'_>) {
+    fn write_list(&self, out: &mut Fields<'_>) {
         out.array("missions", |a| {
             for m in &self.missions {
                 a.object(|o| {
@@ -384,20 +450,11 @@ impl Missions {
             }
         });
     }
-
-    /// Writes `waypoints` of a mission as objects.
-    pub fn write_waypoints(mission: &Mission, out: &mut Fields<'_>) {
-        out.array("waypoints", |a| {
-            for wp in &mission.waypoints {
-                a.object(|o| wp.write(o));
-            }
-        });
-    }
 }
 
 impl AbortReport {
     /// Writes the report as members of an object.
-    pub fn write(&self, out: &mut Fields<'_>) {
+    pub(crate) fn write(&self, out: &mut Fields<'_>) {
         out.u64("abort_id", self.abort_id.into());
         match self.ext_id {
             Some(id) => out.u64("ext_id", id.into()),
@@ -423,6 +480,16 @@ mod tests {
     }
 
     #[test]
+    fn a_top_level_array_of_waypoints_is_a_mission_too() {
+        let wps = parse(
+            r#"[{"x":1,"y":2,"z":-3},{"id":7,"x":4,"y":5,"z":-6,"yaw":1}]"#,
+            &fence(),
+        )
+        .unwrap();
+        assert_eq!((wps[0].wp_id(), wps[1].wp_id(), wps[1].yaw), (1, 7, Some(1.0)));
+    }
+
+    #[test]
     fn design_mission_json_is_accepted_with_default_ids() {
         let wps = parse(
             r#"{"waypoints":[{"x":1,"y":2,"z":-3,"yaw":0.5},{"x":4,"y":5,"z":-6}]}"#,
@@ -438,18 +505,19 @@ mod tests {
     #[test]
     fn unusable_missions_are_refused_with_a_reason() {
         let refused = |json: &str| parse(json, &fence()).unwrap_err().to_string();
-        assert_eq!(
-            refused(r#"[{"x":1}]"#),
-            r#"Bad mission: expected an object {"waypoints":[...]}"#
-        );
+        assert!(refused(r#"[{"x":1}]"#).contains("missing field `y`"));
         assert!(refused(r#"{"waypoints":[{"x":1,"y":2}]}"#).contains("missing field `z`"));
         assert!(
             refused(r#"{"waypoints":[{"x":1,"y":2,"z":-1,"speed":3}]}"#).contains("unknown field `speed`")
         );
-        assert_eq!(refused(r#"{"waypoints":[]}"#), "Bad mission: no waypoints");
+        assert_eq!(
+            refused(r#"{"waypoints":[]}"#),
+            "Invalid arguments: bad mission: no waypoints"
+        );
+        assert_eq!(refused("[]"), "Invalid arguments: bad mission: no waypoints");
         assert_eq!(
             refused(r#"{"waypoints":[{"id":4,"x":0,"y":0,"z":-1},{"id":4,"x":0,"y":0,"z":-2}]}"#),
-            "Bad mission: duplicate waypoint id 4"
+            "Invalid arguments: bad mission: duplicate waypoint id 4"
         );
         assert!(refused(r#"{"waypoints":[{"x":0,"y":0,"z":2}]}"#).contains("below the ground"));
         assert!(refused(r#"{"waypoints":[{"x":500,"y":0,"z":-2}]}"#).contains("geofence_radius"));

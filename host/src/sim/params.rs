@@ -1,21 +1,27 @@
-//! Vehicle parameters: typed, with defaults and ranges, persisted atomically.
+//! The autopilot's parameters: typed, with defaults and ranges, persisted
+//! atomically.
 //!
-//! `set_param` and `reset_param` change the working values only;
-//! `save_param 1` writes them to `params.json` in the data directory (temp
-//! file, fsync, rename, fsync of the directory), `save_param 0` discards the
-//! unsaved changes by going back to what is on disk. `open` loads the file.
+//! `set_param` and `reset_param` change the working values, which take
+//! effect at once; `save_param 1` writes them to `params.json` in the data
+//! directory (temp file, fsync, rename, fsync of the directory).
+//! `save_param 0` saves nothing and changes nothing: the working values stay
+//! in effect until a restart, and the answer names the parameters whose
+//! working value is not saved. [`Params::load`] reads the file.
 
 use std::io;
 use std::path::{Path, PathBuf};
 
-use lluav_core::Fields;
+use lluav_core::{Args, Command, CommandId, Fields};
 
 use super::error::{SimError, SimResult};
-use super::files::atomic_write;
+use crate::companion::atomic_write;
+
+/// File in the data directory holding the saved parameters.
+pub(crate) const PARAMS_FILE: &str = "params.json";
 
 /// A parameter value.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Value {
+pub(crate) enum Value {
     /// An integer.
     Int(i64),
     /// A real number.
@@ -26,7 +32,7 @@ pub enum Value {
 
 impl Value {
     /// The type's name, as `get_param` reports it.
-    pub fn type_name(self) -> &'static str {
+    pub(crate) fn type_name(self) -> &'static str {
         match self {
             Value::Int(_) => "int",
             Value::Float(_) => "float",
@@ -77,7 +83,7 @@ impl Value {
     }
 
     /// Writes the value as a member of a response object.
-    pub fn write(self, out: &mut Fields<'_>, key: &str) {
+    pub(crate) fn write(self, out: &mut Fields<'_>, key: &str) {
         match self {
             Value::Int(i) => out.i64(key, i),
             Value::Float(f) => out.f64(key, f),
@@ -88,29 +94,29 @@ impl Value {
 
 /// One parameter's definition.
 #[derive(Clone, Copy, Debug)]
-pub struct Def {
+pub(crate) struct Def {
     /// The typed key the simulator reads it by.
-    pub key: Key,
+    key: Key,
     /// Its name on the wire.
-    pub name: &'static str,
+    name: &'static str,
     /// Its default, which also fixes its type.
-    pub default: Value,
+    default: Value,
     /// Smallest allowed value (ignored for booleans).
-    pub min: f64,
+    min: f64,
     /// Largest allowed value (ignored for booleans).
-    pub max: f64,
+    max: f64,
     /// What it does, with its unit.
-    pub doc: &'static str,
+    doc: &'static str,
 }
 
 macro_rules! params {
     ($( $key:ident $name:literal $default:expr, $min:literal ..= $max:literal, $doc:literal; )*) => {
         /// A parameter the simulator reads.
         #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-        pub enum Key { $( #[doc = $doc] $key, )* }
+        pub(crate) enum Key { $( #[doc = $doc] $key, )* }
 
         /// Every parameter, in `Key` order.
-        pub static DEFS: &[Def] = &[
+        static DEFS: &[Def] = &[
             $( Def { key: Key::$key, name: $name, default: $default, min: $min, max: $max, doc: $doc }, )*
         ];
     };
@@ -136,7 +142,7 @@ params! {
 
 /// The working and saved parameter values.
 #[derive(Debug)]
-pub struct Params {
+pub(crate) struct Params {
     values: Vec<Value>,
     saved: Vec<Value>,
     file: PathBuf,
@@ -146,7 +152,7 @@ impl Params {
     /// Loads `file` if it exists; parameters it lacks keep their defaults.
     /// Unknown names and unusable values in the file are skipped with a
     /// warning, so that an older or newer daemon can still start.
-    pub fn load(file: PathBuf) -> io::Result<Params> {
+    pub(crate) fn load(file: PathBuf) -> io::Result<Params> {
         let saved = read_file(&file)?;
         Ok(Params {
             values: saved.clone(),
@@ -156,22 +162,22 @@ impl Params {
     }
 
     /// The working value of `key`.
-    pub fn value(&self, key: Key) -> Value {
+    fn value(&self, key: Key) -> Value {
         self.values.get(key as usize).copied().unwrap_or(Value::Int(0))
     }
 
     /// The working value of `key` as a number.
-    pub fn f64(&self, key: Key) -> f64 {
+    pub(crate) fn f64(&self, key: Key) -> f64 {
         self.value(key).as_f64()
     }
 
     /// The working value of a boolean `key`.
-    pub fn flag(&self, key: Key) -> bool {
+    pub(crate) fn flag(&self, key: Key) -> bool {
         self.value(key) == Value::Bool(true)
     }
 
     /// The definition and working value of the parameter called `name`.
-    pub fn get(&self, name: &str) -> SimResult<(&'static Def, Value)> {
+    fn get(&self, name: &str) -> SimResult<(&'static Def, Value)> {
         let def = DEFS
             .iter()
             .find(|d| d.name == name)
@@ -180,13 +186,13 @@ impl Params {
     }
 
     /// Whether the working value of `def` differs from the saved one.
-    pub fn unsaved(&self, def: &Def) -> bool {
+    fn unsaved(&self, def: &Def) -> bool {
         self.values.get(def.key as usize) != self.saved.get(def.key as usize)
     }
 
-    /// Sets the working value of `name` from its text (ret -2 for a value
-    /// of the wrong type, -1 for an unknown name or a value out of range).
-    pub fn set(&mut self, name: &str, text: &str) -> SimResult<Value> {
+    /// Sets the working value of `name` from its text (ret -2 for an
+    /// unknown name, a value of the wrong type or out of range).
+    fn set(&mut self, name: &str, text: &str) -> SimResult<Value> {
         let (def, _) = self.get(name)?;
         let value = def.default.parse_like(text).ok_or_else(|| SimError::ParamType {
             name: name.into(),
@@ -208,12 +214,12 @@ impl Params {
     }
 
     /// Every working value back to its default (not saved until `save`).
-    pub fn reset(&mut self) {
+    fn reset(&mut self) {
         self.values = defaults();
     }
 
     /// Persists the working values atomically.
-    pub fn save(&mut self) -> io::Result<()> {
+    fn save(&mut self) -> io::Result<()> {
         let map: serde_json::Map<String, serde_json::Value> = DEFS
             .iter()
             .map(|d| (d.name.to_owned(), self.value(d.key).to_json()))
@@ -224,25 +230,59 @@ impl Params {
         Ok(())
     }
 
-    /// Drops unsaved changes by reloading the file; returns how many
-    /// parameters changed back.
-    pub fn discard(&mut self) -> io::Result<usize> {
-        self.saved = read_file(&self.file)?;
-        let changed = self
-            .values
-            .iter()
-            .zip(&self.saved)
-            .filter(|(a, b)| a != b)
-            .count();
-        self.values = self.saved.clone();
-        Ok(changed)
-    }
-
     /// Writes every parameter as `name: value` members.
-    pub fn write_all(&self, out: &mut Fields<'_>) {
+    fn write_all(&self, out: &mut Fields<'_>) {
         for def in DEFS {
             self.value(def.key).write(out, def.name);
         }
+    }
+
+    /// `param`, `get_param`, `set_param`, `reset_param`, `save_param`.
+    pub(crate) fn run(&mut self, cmd: &Command<'_>, out: &mut Fields<'_>) -> SimResult {
+        match (cmd.id(), cmd.args()) {
+            (CommandId::GetParam, Args::ParamName(name)) => self.write_one(name, out)?,
+            (CommandId::SetParam, Args::SetParam { name, value }) => {
+                let v = self.set(name, value)?;
+                tracing::info!(param = name, value, "parameter set");
+                out.object("param", |o| v.write(o, name)).bool("unsaved", true);
+            }
+            (CommandId::ResetParam, _) => {
+                self.reset();
+                tracing::info!("parameters reset to defaults (unsaved)");
+                out.object("param", |o| self.write_all(o));
+            }
+            (CommandId::SaveParam, &Args::Flag(true)) => {
+                self.save().map_err(|e| SimError::io("save parameters", e))?;
+                tracing::info!("parameters saved");
+                out.bool("saved", true).str("file", PARAMS_FILE);
+            }
+            (CommandId::SaveParam, _) => {
+                let unsaved: Vec<_> = DEFS.iter().filter(|d| self.unsaved(d)).map(|d| d.name).collect();
+                out.bool("saved", false).array("unsaved", |a| {
+                    unsaved.iter().for_each(|n| {
+                        a.str(n);
+                    })
+                });
+            }
+            _ => {
+                out.object("param", |o| self.write_all(o));
+            }
+        }
+        Ok(())
+    }
+
+    fn write_one(&self, name: &str, out: &mut Fields<'_>) -> SimResult {
+        let (def, value) = self.get(name)?;
+        out.object("param", |o| value.write(o, def.name));
+        out.object("info", |o| {
+            o.str("type", def.default.type_name());
+            def.default.write(o, "default");
+            o.f64("min", def.min)
+                .f64("max", def.max)
+                .bool("unsaved", self.unsaved(def))
+                .str("doc", def.doc);
+        });
+        Ok(())
     }
 }
 
@@ -295,30 +335,35 @@ mod tests {
         assert_eq!(p.set("autosleep_after", "60").unwrap(), Value::Int(60));
         assert_eq!(p.set("rtl_land", "false").unwrap(), Value::Bool(false));
         let e = p.set("autosleep_after", "1.5").unwrap_err();
-        assert_eq!(e.to_string(), "autosleep_after: expected int, got '1.5'");
-        let e = p.set("takeoff_alt", "121").unwrap_err();
-        assert_eq!(e.to_string(), "takeoff_alt: 121 out of range 0.5..120");
         assert_eq!(
-            p.set("takeoff_alt", "NaN").unwrap_err().ret(),
-            lluav_core::Ret::InvalidArgs
+            e.to_string(),
+            "Invalid arguments: autosleep_after expects int, got '1.5'"
         );
+        let e = p.set("takeoff_alt", "121").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "Invalid arguments: takeoff_alt 121 out of range 0.5..120"
+        );
+        assert!(matches!(
+            p.set("takeoff_alt", "NaN"),
+            Err(SimError::ParamType { .. })
+        ));
         assert_eq!(
             p.set("nope", "1").unwrap_err().to_string(),
-            "Unknown parameter: nope"
+            "Invalid arguments: unknown parameter nope"
         );
         assert_eq!(p.f64(Key::TakeoffAlt), 3.0);
     }
 
     #[test]
-    fn saved_values_survive_a_reload_and_discard_restores_them() {
+    fn saved_values_survive_a_reload_and_unsaved_ones_do_not() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("params.json");
         let mut p = Params::load(file.clone()).unwrap();
         p.set("cruise_speed", "4.5").unwrap();
         p.save().unwrap();
         p.set("cruise_speed", "1").unwrap();
-        assert_eq!(p.discard().unwrap(), 1);
-        assert_eq!(p.f64(Key::CruiseSpeed), 4.5);
+        assert_eq!(p.f64(Key::CruiseSpeed), 1.0);
         let reloaded = Params::load(file).unwrap();
         assert_eq!(reloaded.f64(Key::CruiseSpeed), 4.5);
         assert_eq!(reloaded.f64(Key::TakeoffAlt), 2.0);

@@ -1,20 +1,27 @@
-//! A simulator behind lluav-core's real server, driven with text frames and
-//! simulated time, for the `sim_*` tests.
+//! lluavd's backend (the companion computer and the simulator) behind
+//! lluav-core's real server, driven with text frames and simulated time,
+//! for the `sim_*` tests.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use lluav_core::{Auth, Message, Outcome, Server, Session};
+use lluav_host::companion::CompanionConfig;
+use lluav_host::daemon::Vehicle;
+use lluav_host::onboard::Onboard;
 use lluav_host::recent_log::RecentLog;
-use lluav_host::sim::{SimConfig, Simulator};
+use lluav_host::sim::Simulator;
 use serde_json::Value;
 
 /// Wall-clock step used when driving time forward.
 pub const STEP: Duration = Duration::from_millis(100);
 
+/// The request time every frame gets (2024-04-27T16:00:00Z).
+pub const NOW_MS: i64 = 1_714_233_600_000;
+
 pub struct Harness {
-    pub server: Server<Simulator, fn() -> i64>,
+    pub server: Server<Onboard<Simulator>, fn() -> i64>,
     pub session: Session,
     pub log: RecentLog,
     pub dir: PathBuf,
@@ -24,7 +31,7 @@ pub struct Harness {
 }
 
 fn clock() -> i64 {
-    1_714_233_600_000
+    NOW_MS
 }
 
 impl Harness {
@@ -37,18 +44,24 @@ impl Harness {
         h
     }
 
-    /// A simulator over an existing data directory.
+    /// A simulator over an existing data directory; `password` is the
+    /// configured one (pinned: `passwd` must refuse), else the stored one
+    /// is in force.
     pub fn open(dir: &Path, speed: f64, password: Option<&str>) -> Harness {
         let log = RecentLog::new(256);
-        let sim = Simulator::open(SimConfig {
+        let companion = CompanionConfig {
             data_dir: dir.to_path_buf(),
-            speed,
             log: log.clone(),
-        })
-        .expect("simulator opens");
+            password_pinned: password.is_some(),
+        };
+        let onboard = Onboard::simulator(companion, speed).expect("backend opens");
+        let password = password.map(str::to_owned).or_else(|| onboard.stored_password());
+        let auth = Auth::new(password.as_deref()).expect("auth");
+        let mut server = Server::new(onboard, clock as fn() -> i64, auth);
+        let session = server.open(None);
         Harness {
-            server: Server::new(sim, clock as fn() -> i64, Auth::new(password).expect("auth")),
-            session: Session::new(),
+            server,
+            session,
             log,
             dir: dir.to_path_buf(),
             _tmp: None,
@@ -120,6 +133,16 @@ impl Harness {
             t += STEP.as_secs_f64();
         }
         t
+    }
+
+    /// Persists what is pending, as the daemon does at shutdown.
+    pub fn flush(&mut self) {
+        self.server.backend_mut().flush().expect("flushed");
+    }
+
+    /// The password `passwd` saved, if any.
+    pub fn stored_password(&self) -> Option<String> {
+        self.server.backend().stored_password()
     }
 
     /// Takes off and waits until hovering.

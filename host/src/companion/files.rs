@@ -1,5 +1,7 @@
 //! The data directory: where maps, images, bags, videos, logs and persisted
-//! state live, and the only place client paths may point into.
+//! state live, and the only place client paths may point into. A vehicle
+//! backend reads mission files and stores camera images and videos through
+//! [`Files`] too, so the rules below hold for every backend.
 //!
 //! The core already refuses absolute paths, `..` and unsafe names; here
 //! every client path is joined to the data directory and walked component
@@ -12,13 +14,17 @@ use std::io::{self, Write};
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Component, Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::SystemTime;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use super::error::{SimError, SimResult};
+use nix::fcntl::OFlag;
+
+use super::error::{Error, Result};
+use super::system;
+use crate::recent_log::utc_date;
 
 /// Subdirectories of the data directory.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Area {
+pub(crate) enum Area {
     /// Saved maps, one file each.
     Maps,
     /// Image directories, one per capture session.
@@ -35,7 +41,7 @@ impl Area {
     const ALL: [Area; 5] = [Area::Maps, Area::Images, Area::Bags, Area::Videos, Area::Logs];
 
     /// The subdirectory's name.
-    pub fn dir_name(self) -> &'static str {
+    pub(crate) fn dir_name(self) -> &'static str {
         match self {
             Area::Maps => "maps",
             Area::Images => "images",
@@ -46,18 +52,18 @@ impl Area {
     }
 }
 
-/// The simulator's data directory.
+/// The data directory of the companion computer.
 #[derive(Clone, Debug)]
-pub struct DataDir {
+pub struct Files {
     root: PathBuf,
 }
 
-impl DataDir {
+impl Files {
     /// Creates `root` and its subdirectories if needed.
-    pub fn open(root: &Path) -> io::Result<DataDir> {
+    pub(crate) fn open(root: &Path) -> io::Result<Files> {
         fs::create_dir_all(root)?;
         let root = fs::canonicalize(root)?;
-        let data = DataDir { root };
+        let data = Files { root };
         for area in Area::ALL {
             let dir = data.area(area);
             fs::create_dir_all(&dir)?;
@@ -80,66 +86,104 @@ impl DataDir {
     }
 
     /// A subdirectory.
-    pub fn area(&self, area: Area) -> PathBuf {
+    pub(crate) fn area(&self, area: Area) -> PathBuf {
         self.root.join(area.dir_name())
     }
 
     /// Resolves a client's relative path inside the data directory. The
     /// path need not exist; whatever part of it exists is checked.
-    pub fn resolve(&self, rel: &str) -> SimResult<PathBuf> {
+    pub(crate) fn resolve(&self, rel: &str) -> Result<PathBuf> {
         let mut path = self.root.clone();
         for component in Path::new(rel).components() {
             match component {
                 Component::Normal(part) => path.push(part),
                 Component::CurDir => {}
-                _ => return Err(SimError::Escapes(rel.into())),
+                _ => return Err(Error::Escapes(rel.into())),
             }
             match fs::symlink_metadata(&path) {
                 Ok(meta) if meta.file_type().is_symlink() => {
-                    let target = fs::canonicalize(&path).map_err(|_| SimError::Escapes(rel.into()))?;
+                    let target = fs::canonicalize(&path).map_err(|_| Error::Escapes(rel.into()))?;
                     if !target.starts_with(&self.root) {
-                        return Err(SimError::Escapes(rel.into()));
+                        return Err(Error::Escapes(rel.into()));
                     }
                 }
                 Ok(_) => {}
                 // The rest does not exist yet, so nothing further can be a link.
                 Err(e) if e.kind() == io::ErrorKind::NotFound => break,
-                Err(e) => return Err(SimError::io(format!("stat {rel}"), e)),
+                Err(e) => return Err(Error::about("stat", rel, e)),
             }
         }
         Ok(path)
     }
 
     /// Resolves a single name inside `area`.
-    pub fn named(&self, area: Area, name: &str) -> SimResult<PathBuf> {
+    pub(crate) fn named(&self, area: Area, name: &str) -> Result<PathBuf> {
         if !matches!(
             Path::new(name).components().collect::<Vec<_>>()[..],
             [Component::Normal(_)]
         ) {
-            return Err(SimError::Escapes(name.into()));
+            return Err(Error::Escapes(name.into()));
         }
-        self.resolve(&format!("{}/{name}", area.dir_name()))
+        self.within(area, name)
     }
 
-    /// Reads a client's file, at most `limit` bytes, as UTF-8.
-    pub fn read_client_file(&self, rel: &str, limit: u64) -> SimResult<String> {
+    /// Resolves a client's relative path inside `area`.
+    pub(crate) fn within(&self, area: Area, rel: &str) -> Result<PathBuf> {
+        self.resolve(&format!("{}/{rel}", area.dir_name()))
+    }
+
+    /// Reads a client's file (a path relative to the data directory), at
+    /// most `limit` bytes, as UTF-8.
+    pub fn read_client_file(&self, rel: &str, limit: u64) -> Result<String> {
         let path = self.resolve(rel)?;
-        let meta = fs::metadata(&path).map_err(|_| SimError::NotFound(rel.into()))?;
+        let meta = fs::metadata(&path).map_err(|e| Error::about("stat", rel, e))?;
         if !meta.is_file() {
-            return Err(SimError::NotFound(rel.into()));
+            return Err(Error::NotFound(format!("{rel} (not a file)")));
         }
         if meta.len() > limit {
-            return Err(SimError::Refused(format!("{rel} is larger than {limit} bytes")));
+            return Err(Error::Invalid(format!("{rel} is larger than {limit} bytes")));
         }
-        let bytes = fs::read(&path).map_err(|e| SimError::io(format!("read {rel}"), e))?;
-        String::from_utf8(bytes).map_err(|_| SimError::Refused(format!("{rel} is not UTF-8")))
+        let bytes = fs::read(&path).map_err(|e| Error::about("read", rel, e))?;
+        String::from_utf8(bytes).map_err(|_| Error::Invalid(format!("{rel} is not UTF-8")))
     }
+
+    /// Stores a camera image as a new file `name` in the capture directory
+    /// of the UTC day of `now_ms` (`images/YYYYMMDD`, created if needed);
+    /// returns that directory's name.
+    pub fn store_image(&self, now_ms: i64, name: &str, bytes: &[u8]) -> Result<String> {
+        let dir_name = capture_dir(now_ms);
+        let dir = self.named(Area::Images, &dir_name)?;
+        fs::create_dir_all(&dir).map_err(|e| Error::io("create image directory", e))?;
+        create_file(&dir.join(name), bytes).map_err(|e| Error::io(format!("write {name}"), e))?;
+        Ok(dir_name)
+    }
+
+    /// Stores a downloaded camera video as `videos/<name>` (replacing one
+    /// of that name); returns its path relative to the data directory.
+    pub fn store_video(&self, name: &str, bytes: &[u8]) -> Result<String> {
+        let path = self.named(Area::Videos, name)?;
+        atomic_write(&path, bytes, 0o644).map_err(|e| Error::io(format!("write {name}"), e))?;
+        Ok(format!("{}/{name}", Area::Videos.dir_name()))
+    }
+
+    /// Bytes available to unprivileged users on the data directory's
+    /// filesystem.
+    pub fn free_bytes(&self) -> Result<u64> {
+        system::available_bytes(&self.root).map_err(|e| Error::io("statvfs()", e))
+    }
+}
+
+/// The directory cameras write into on the UTC day of `now_ms`: the one
+/// `clear_images` never deletes.
+pub(crate) fn capture_dir(now_ms: i64) -> String {
+    let since_epoch = Duration::from_millis(u64::try_from(now_ms).unwrap_or(0));
+    utc_date(UNIX_EPOCH + since_epoch)
 }
 
 /// Writes `bytes` to `path` so that a crash leaves either the old or the new
 /// content: a temp file in the same directory, fsync, rename, fsync of the
 /// directory.
-pub fn atomic_write(path: &Path, bytes: &[u8], mode: u32) -> io::Result<()> {
+pub(crate) fn atomic_write(path: &Path, bytes: &[u8], mode: u32) -> io::Result<()> {
     static SEQ: AtomicU64 = AtomicU64::new(0);
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut tmp_name = OsString::from(".");
@@ -168,33 +212,33 @@ pub fn atomic_write(path: &Path, bytes: &[u8], mode: u32) -> io::Result<()> {
 }
 
 /// Writes a new file that must not exist yet (never through a link).
-pub fn create_file(path: &Path, bytes: &[u8]) -> io::Result<()> {
+pub(crate) fn create_file(path: &Path, bytes: &[u8]) -> io::Result<()> {
     let mut f = OpenOptions::new()
         .write(true)
         .create_new(true)
-        .custom_flags(libc::O_NOFOLLOW)
+        .custom_flags(OFlag::O_NOFOLLOW.bits())
         .open(path)?;
     f.write_all(bytes)
 }
 
 /// A regular file or real directory (never a link) in an area.
 #[derive(Clone, Debug)]
-pub struct Entry {
+pub(crate) struct Entry {
     /// Its name.
-    pub name: String,
+    pub(crate) name: String,
     /// Its full path.
-    pub path: PathBuf,
+    pub(crate) path: PathBuf,
     /// Size in bytes (of all regular files inside, for a directory).
-    pub bytes: u64,
+    pub(crate) bytes: u64,
     /// Regular files inside (1 for a file).
-    pub files: u64,
+    pub(crate) files: u64,
     /// Last modification.
-    pub modified: SystemTime,
+    pub(crate) modified: SystemTime,
 }
 
 impl Entry {
     /// Modification time in milliseconds since the Unix epoch.
-    pub fn modified_ms(&self) -> i64 {
+    pub(crate) fn modified_ms(&self) -> i64 {
         self.modified
             .duration_since(SystemTime::UNIX_EPOCH)
             .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
@@ -203,7 +247,7 @@ impl Entry {
 
 /// What [`entries`] lists.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Kind {
+pub(crate) enum Kind {
     /// Regular files.
     Files,
     /// Directories.
@@ -212,7 +256,7 @@ pub enum Kind {
 
 /// The entries of `dir` of one kind, oldest first (ties by name). Links and
 /// hidden temp files are skipped.
-pub fn entries(dir: &Path, kind: Kind) -> io::Result<Vec<Entry>> {
+pub(crate) fn entries(dir: &Path, kind: Kind) -> io::Result<Vec<Entry>> {
     let mut out = Vec::new();
     for item in fs::read_dir(dir)? {
         let item = item?;
@@ -257,7 +301,7 @@ fn dir_usage(dir: &Path) -> io::Result<(u64, u64)> {
 
 /// Removes a regular file or a real directory tree (links inside are
 /// removed, never followed).
-pub fn remove_entry(path: &Path) -> io::Result<()> {
+fn remove_entry(path: &Path) -> io::Result<()> {
     let meta = fs::symlink_metadata(path)?;
     if meta.is_dir() {
         fs::remove_dir_all(path)
@@ -269,7 +313,7 @@ pub fn remove_entry(path: &Path) -> io::Result<()> {
 /// Deletes entries of `dir`, oldest first, until `enough()` holds (checked
 /// before each deletion) or none are left; `keep` is never deleted.
 /// Returns the names removed.
-pub fn clear_oldest(
+pub(crate) fn clear_oldest(
     dir: &Path,
     kind: Kind,
     keep: Option<&Path>,
@@ -299,14 +343,14 @@ mod tests {
         let outside = tempfile::tempdir().unwrap();
         fs::write(outside.path().join("secret"), "x").unwrap();
         let dir = tempfile::tempdir().unwrap();
-        let data = DataDir::open(dir.path()).unwrap();
+        let data = Files::open(dir.path()).unwrap();
         symlink(outside.path(), data.root().join("out")).unwrap();
         symlink(outside.path().join("secret"), data.area(Area::Maps).join("m")).unwrap();
-        assert!(matches!(data.resolve("out/secret"), Err(SimError::Escapes(_))));
-        assert!(matches!(data.named(Area::Maps, "m"), Err(SimError::Escapes(_))));
+        assert!(matches!(data.resolve("out/secret"), Err(Error::Escapes(_))));
+        assert!(matches!(data.named(Area::Maps, "m"), Err(Error::Escapes(_))));
         assert!(matches!(
             data.read_client_file("out/secret", 10),
-            Err(SimError::Escapes(_))
+            Err(Error::Escapes(_))
         ));
     }
 
@@ -315,14 +359,14 @@ mod tests {
         let outside = tempfile::tempdir().unwrap();
         let dir = tempfile::tempdir().unwrap();
         symlink(outside.path(), dir.path().join("maps")).unwrap();
-        let e = DataDir::open(dir.path()).unwrap_err();
+        let e = Files::open(dir.path()).unwrap_err();
         assert!(e.to_string().ends_with("maps leaves the data directory"), "{e}");
     }
 
     #[test]
     fn symlinks_within_the_data_dir_are_followed() {
         let dir = tempfile::tempdir().unwrap();
-        let data = DataDir::open(dir.path()).unwrap();
+        let data = Files::open(dir.path()).unwrap();
         fs::write(data.area(Area::Maps).join("real"), "map").unwrap();
         symlink(data.area(Area::Maps), data.root().join("alias")).unwrap();
         assert_eq!(data.read_client_file("alias/real", 10).unwrap(), "map");
