@@ -140,6 +140,9 @@ fn lluav_one_shot_prints_pretty_json_and_exits_by_ret() {
         text(&out.stderr)
     );
 
+    // Setpoints are for a vehicle in the air.
+    let out = lluav(&["--url", url, "--password", PASSWORD, "takeoff"], None, home);
+    assert_eq!(out.status.code(), Some(0), "{}", text(&out.stderr));
     let out = lluav(
         &["--url", url, "--password", PASSWORD, "set_sp_ned", "1:2:-3:0.5"],
         None,

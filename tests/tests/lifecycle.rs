@@ -92,6 +92,29 @@ async fn saved_parameters_and_the_password_survive_a_restart() {
 }
 
 #[tokio::test]
+async fn a_password_pinned_by_the_configuration_survives_passwd_and_a_restart() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    let r = c.request("passwd n3wpass").await;
+    assert_eq!(
+        (r["ret"].as_i64(), r["msg"].as_str()),
+        (Some(-1), Some("Password is set by the daemon's configuration")),
+        "{r}"
+    );
+    let r = c.request("login n3wpass").await;
+    assert_eq!(r["msg"], "Wrong password!", "{r}");
+    c.close().await;
+    assert!(daemon.terminate().success());
+    assert!(!dir.path().join("password").exists(), "nothing was saved");
+
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let mut c = Conn::connect(&daemon.url).await;
+    let r = c.request(&format!("login {PASSWORD}")).await;
+    assert_eq!(r["ret"], 0, "{r}");
+}
+
+#[tokio::test]
 async fn sigterm_under_load_loses_no_acknowledged_save() {
     let dir = tempfile::tempdir().expect("temp dir");
     let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));

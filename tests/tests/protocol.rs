@@ -222,7 +222,9 @@ async fn showmsg_shows_the_daemons_own_log_lines() {
 #[tokio::test]
 async fn a_new_password_applies_to_every_session() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    // A saved password, not a configured one: passwd may change it.
+    std::fs::write(dir.path().join("password"), PASSWORD).expect("password saved");
+    let daemon = Lluavd::start(dir.path(), &Options::default());
     let mut a = Conn::login(&daemon.url, PASSWORD).await;
     let mut b = Conn::connect(&daemon.url).await;
     let r = a.request("passwd changed1").await;

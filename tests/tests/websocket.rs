@@ -69,6 +69,9 @@ async fn ping_gets_pong_with_the_same_payload() {
 async fn fragmented_text_is_reassembled_into_one_request() {
     let (_dir, daemon) = daemon_with(&[]).await;
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    // Setpoints are for a vehicle in the air.
+    let r = c.request("takeoff").await;
+    assert_eq!(r["ret"], 0, "{r}");
     c.send_text_frame(b"set_sp", Data::Text, false).await;
     c.send_raw(Message::Ping(b"mid".to_vec().into())).await;
     c.send_text_frame(b"_ned 1.0:2.0", Data::Continue, false).await;
