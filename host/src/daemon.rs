@@ -16,9 +16,11 @@ use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
 use tracing::{error, info};
 
+use crate::companion::CompanionConfig;
 use crate::config::Settings;
+use crate::onboard::Onboard;
 use crate::recent_log::RecentLog;
-use crate::sim::{SimConfig, Simulator};
+use crate::sim::Simulator;
 use crate::ws::{self, Echo, Handler, Limits};
 
 /// How often the vehicle is advanced.
@@ -64,20 +66,6 @@ pub trait Vehicle: Backend + Send + 'static {
     fn ready(&mut self, ticket: Ticket) -> Ready {
         let _ = ticket;
         Box::pin(std::future::ready(()))
-    }
-}
-
-impl Vehicle for Simulator {
-    fn tick(&mut self, dt: Duration) {
-        Simulator::tick(self, dt);
-    }
-
-    fn flush(&mut self) -> std::io::Result<()> {
-        Simulator::flush(self)
-    }
-
-    fn stored_password(&self) -> Option<String> {
-        Simulator::stored_password(self)
     }
 }
 
@@ -208,23 +196,24 @@ pub struct Daemon<V> {
     mode: Mode<V>,
 }
 
-impl Daemon<Simulator> {
-    /// Opens the simulated vehicle (unless `settings.echo`), decides the
-    /// password and binds the listener.
+impl Daemon<Onboard<Simulator>> {
+    /// Opens the companion computer and the simulated vehicle (unless
+    /// `settings.echo`), decides the password and binds the listener.
     pub async fn open(settings: &Settings, log: RecentLog) -> Result<Self, DaemonError> {
         let vehicle = if settings.echo {
             None
         } else {
-            let config = SimConfig {
+            let companion = CompanionConfig {
                 data_dir: settings.data_dir.clone(),
-                speed: settings.sim_speed,
                 log,
+                password_pinned: settings.password.is_some(),
             };
-            let sim = Simulator::open(config).map_err(|source| DaemonError::Open {
-                dir: settings.data_dir.clone(),
-                source,
-            })?;
-            Some(sim)
+            let onboard =
+                Onboard::simulator(companion, settings.sim_speed).map_err(|source| DaemonError::Open {
+                    dir: settings.data_dir.clone(),
+                    source,
+                })?;
+            Some(onboard)
         };
         Daemon::with_vehicle(settings, vehicle).await
     }
