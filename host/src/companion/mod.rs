@@ -129,9 +129,10 @@ impl Companion {
                 self.bags.write_statics(out);
                 self.nodes.write_statics(out);
             }
-            _ => {
+            CommandId::Diskusage => {
                 out.u64("available_MB", self.files.free_bytes()? >> 20);
             }
+            id => return Err(Error::NotOwned(id.name())),
         }
         Ok(())
     }

@@ -176,16 +176,6 @@ impl<V: VehicleBackend> Onboard<V> {
         Onboard { companion, vehicle }
     }
 
-    /// The vehicle.
-    pub fn vehicle(&self) -> &V {
-        &self.vehicle
-    }
-
-    /// The companion computer.
-    pub fn companion(&self) -> &Companion {
-        &self.companion
-    }
-
     fn route(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         let Onboard { companion, vehicle } = self;
         let for_companion = |companion: &mut Companion, vehicle: &V, out: &mut Fields<'_>| {

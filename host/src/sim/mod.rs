@@ -2,9 +2,9 @@
 //!
 //! The commands [`crate::onboard`] routes to the vehicle are carried out
 //! here against a simulated vehicle: an FSM with timed transitions
-//! ([`flight`]: the modes carry their own data), missions ([`mission`]),
-//! the autopilot's typed parameters ([`params`]), and simulated peripherals
-//! ([`devices`], [`camera`]). [`Simulator::run`] hands each command to the
+//! (`flight`: the modes carry their own data), missions (`mission`),
+//! the autopilot's typed parameters (`params`), and simulated peripherals
+//! (`devices`, `camera`). `Simulator::run` hands each command to the
 //! subsystem that owns its section of the command table.
 //!
 //! Only `takeoff` leaves the ground: every other command that moves the
