@@ -8,7 +8,8 @@ from types import TracebackType
 from typing import Any, Callable
 
 from websockets.exceptions import ConnectionClosed, WebSocketException
-from websockets.sync.client import ClientConnection, connect
+from websockets.sync.client import connect
+from websockets.sync.connection import Connection
 
 from . import _core, _methods, _tls
 from ._errors import ConnectionError
@@ -51,7 +52,7 @@ class Client:
         # context manager; the stack leaves it open until close().
         self._stack = contextlib.ExitStack()
         try:
-            self._ws: ClientConnection | None = self._stack.enter_context(
+            self._ws: Connection | None = self._stack.enter_context(
                 connect(url, ssl=ssl, open_timeout=timeout, close_timeout=timeout, compression=None)
             )
         except (OSError, TimeoutError, WebSocketException) as e:

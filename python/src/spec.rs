@@ -84,6 +84,13 @@ impl PySpec {
         self.spec.summary
     }
 
+    /// The heading it stands under in the specification's Command
+    /// Reference, as the core names it (`Flight`, `Mission`, ...).
+    #[getter]
+    fn section(&self) -> String {
+        format!("{:?}", self.spec.section)
+    }
+
     /// The core's grammar name (`Setpoint`, `MwExec`, ...).
     #[getter]
     fn grammar(&self) -> String {

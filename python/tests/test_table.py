@@ -22,6 +22,16 @@ def test_commands_are_the_table_in_id_order_with_unique_names():
     assert all(spec.usage.split(" ")[0] == spec.name for spec in lluav.COMMANDS)
 
 
+def test_sections_follow_the_specs_command_reference():
+    # The table is in the order of the spec's Command Reference, so each
+    # section is one run of ids.
+    sections = [spec.section for spec in lluav.COMMANDS]
+    runs = [s for i, s in enumerate(sections) if i == 0 or sections[i - 1] != s]
+    assert len(runs) == len(set(runs))
+    assert lluav.COMMANDS[0].section == "Authentication"
+    assert lluav.COMMANDS[lluav.parse("takeoff").id - 1].section == "Flight"
+
+
 @pytest.mark.parametrize("cls", [lluav.Client, lluav.AsyncClient])
 def test_every_command_is_a_method_with_the_table_parameters_and_docs(cls):
     for spec in lluav.COMMANDS:

@@ -33,7 +33,7 @@ VALID: dict[str, list[Any]] = {
     "Point": [(1.0, 2.0, -3.0)],
     "Pose": [(1.0, 2.0, -3.0, 0.5)],
     "Zyhk": [([1.5, 2.0],), ([1.5], (0.0, 0.0, 0.0)), {"heights": (2.0,), "land": [1.0, 1.0, 0.5]}],
-    "Mission": [(1001, MISSION), (1002, [MISSION]), (1003, "missions/m1.json")],
+    "Mission": [(1001, MISSION), (1002, MISSION["waypoints"]), (1003, "missions/m1.json")],
     "MwExec": [(1001, [1, 2]), (1001, (1,))],
     "Ai1Mission": [("task-1", "missions/m1.json")],
 }

@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# The Python SDK's test run (a CI step of its own):
+#  1. builds the wheel with maturin (from PyPI) and installs it into a fresh
+#     virtual environment with the test dependencies (the `test` extra);
+#  2. runs python/tests against the real lluavd;
+#  3. checks the README's promise, `pip install ./python`, in another fresh
+#     environment that holds the oldest websockets the package allows (the
+#     newest a CPython 3.9 user gets), and runs the suite there too.
+#
+#   bash scripts/test-python.sh                      # builds lluavd with cargo
+#   LLUAVD=target/debug/lluavd bash scripts/test-python.sh
+#   PYTHON=/usr/bin/python3.12 bash scripts/test-python.sh
+#
+# Idempotent: everything it makes is under target/python/ (pip's cache too);
+# the test environments are made anew on every run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+work=$root/target/python
+python=${PYTHON:-python3}
+export PIP_CACHE_DIR=$work/pip-cache PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=1 PYTHONDONTWRITEBYTECODE=1
+mkdir -p "$work"
+
+fresh_venv() {
+    rm -rf "$1"
+    "$python" -m venv "$1"
+}
+
+echo "== maturin"
+if ! "$work/tools/bin/python" -c "" 2>/dev/null; then
+    fresh_venv "$work/tools"
+fi
+"$work/tools/bin/pip" install -q 'maturin>=1.9.4,<2'
+
+echo "== wheel"
+rm -rf "$work/wheels"
+"$work/tools/bin/maturin" build --release -m python/Cargo.toml -i "$work/tools/bin/python" --out "$work/wheels"
+wheel=$(ls "$work"/wheels/lluav-*.whl)
+
+if [ -z "${LLUAVD:-}" ]; then
+    echo "== lluavd"
+    cargo build -p lluav-host --bin lluavd
+    LLUAVD=${CARGO_TARGET_DIR:-$root/target}/debug/lluavd
+fi
+LLUAVD=$(cd "$(dirname "$LLUAVD")" && pwd)/$(basename "$LLUAVD")
+export LLUAVD
+
+run_suite() {
+    # From a directory without a `lluav` folder, so that the installed
+    # package is the one under test, not python/lluav.
+    (cd "$work" && "$1/bin/python" -m pytest -p no:cacheprovider "$root/python/tests")
+}
+
+echo "== tests: the wheel ($(basename "$wheel")) in a fresh environment"
+fresh_venv "$work/test-venv"
+"$work/test-venv/bin/pip" install -q "$wheel[test]"
+run_suite "$work/test-venv"
+
+echo "== tests: pip install ./python, oldest websockets"
+fresh_venv "$work/pip-venv"
+"$work/pip-venv/bin/pip" install -q 'websockets==15.0.1'
+"$work/pip-venv/bin/pip" install -q "./python[test]"
+"$work/pip-venv/bin/python" -c 'import websockets; assert websockets.__version__ == "15.0.1", websockets.__version__'
+run_suite "$work/pip-venv"
