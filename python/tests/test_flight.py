@@ -45,8 +45,8 @@ def test_a_flight_with_setpoints_a_mission_and_a_landing(lluavd):
         mission = {"waypoints": [{"id": 1, "x": 0, "y": 0, "z": -4}, {"id": 2, "x": 6, "y": 0, "z": -4}, {"id": 3, "x": 6, "y": 6, "z": -6, "yaw": 1.0}]}
         assert c.mission(1001, mission)["waypoints"] == 3
         assert c.mw_list()["ext_id"] == 1001
-        assert c.mw_exec(1001, [2, 3])["wp_ids"] == [2, 3]
-        wait_for(c.state, lambda s: s["fsm"] == "mission", "the mission to start")
+        started = c.mw_exec(1001, [2, 3])
+        assert (started["wp_ids"], started["fsm"]) == ([2, 3], "mission")
         wait_for(c.state, lambda s: s["fsm"] == "hover" and near(s, 6, 6, -6), "waypoint 3")
 
         c.land()
@@ -73,7 +73,9 @@ def test_a_mission_from_a_file_and_a_zyhk_flight_on_asyncio(lluavd):
     async def run() -> None:
         async with lluav.AsyncClient(daemon.url) as c:
             assert (await c.mission(7, "missions/square.json"))["waypoints"] == 2
-            await c.set_param("zyhk_hover", 1.0)
+            # Long enough (0.5 s of real time) to be seen at each height by
+            # polling on a loaded machine.
+            await c.set_param("zyhk_hover", 10.0)
             await c.takeoff()
             await state_of(c, lambda s: s["fsm"] == "hover", "hover")
             await c.mw_exec(7, [1, 2])
