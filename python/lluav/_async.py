@@ -35,6 +35,24 @@ class _Request:
         self.waiter: Optional[asyncio.Future[None]] = None
 
 
+class _Link:
+    """One open connection and the requests waiting on it."""
+
+    __slots__ = ("loop", "pending", "reading", "watchdog", "why", "ws")
+
+    def __init__(self, ws: ClientConnection, loop: asyncio.AbstractEventLoop) -> None:
+        self.ws = ws
+        self.loop = loop
+        # Requests on the wire, oldest first: the server answers in order.
+        self.pending: deque[_Request] = deque()
+        # Whether a caller is reading responses off the connection.
+        self.reading = False
+        # The one timer, for the oldest request's deadline.
+        self.watchdog: Optional[asyncio.TimerHandle] = None
+        # Why the connection was dropped, once it is.
+        self.why: Optional[str] = None
+
+
 class AsyncClient:
     """A connection to an LLUAV server on asyncio.
 
@@ -51,11 +69,18 @@ class AsyncClient:
     """
 
     # How responses reach their callers: the requests on the wire form a
-    # FIFO (the server answers in order). There is no reader task: the
-    # caller that finds nobody reading reads responses off the connection,
-    # hands each to its request, and stops at its own; it then wakes the
-    # oldest waiting caller to read on. A lone call (the common case)
-    # therefore sends and receives by itself, with no task switch.
+    # FIFO (the server answers in order). A request joins the FIFO and its
+    # frame is written in one step, without yielding to the event loop in
+    # between: websockets' send() writes a str message before it first
+    # yields (it documents that it yields only to wait for a full write
+    # buffer to drain, or between the fragments of an iterable), so the
+    # FIFO's order is the order on the wire, with no lock.
+    #
+    # There is no reader task: the caller that finds nobody reading reads
+    # responses off the connection, hands each to its request, and stops at
+    # its own; it then wakes the oldest waiting caller to read on. A lone
+    # call (the common case) therefore sends and receives by itself, with
+    # no task switch.
 
     def __init__(
         self,
@@ -68,20 +93,13 @@ class AsyncClient:
         self.timeout = timeout
         self._password = password
         self._ssl = _tls.context(url, cafile)
-        self._ws: ClientConnection | None = None
+        self._link: _Link | None = None
         self._closed_why = "not connected: use `async with` or `await client.connect()`"
-        self._pending: deque[_Request] = deque()
-        self._reading = False
-        # Held from queuing a request until its frame is written, so that
-        # the queue's order is the order on the wire. Made in connect():
-        # before 3.10 a lock binds to the loop it is made on.
-        self._send_lock: asyncio.Lock | None = None
-        self._watchdog: asyncio.TimerHandle | None = None
         self._closing: set[asyncio.Task[None]] = set()
 
     async def connect(self) -> AsyncClient:
         """Opens the connection and logs in when a password was given."""
-        if self._ws is not None:
+        if self._link is not None:
             return self
         try:
             ws = await connect(
@@ -89,8 +107,7 @@ class AsyncClient:
             )
         except (OSError, asyncio.TimeoutError, WebSocketException) as e:
             raise ConnectionError(f"cannot connect to {self.url}: {e}") from e
-        self._ws = ws
-        self._send_lock = asyncio.Lock()
+        self._link = _Link(ws, asyncio.get_running_loop())
         if self._password is not None:
             try:
                 await self._request(_encode(_methods.LOGIN, (self._password,), None), _methods.LOGIN)
@@ -100,100 +117,99 @@ class AsyncClient:
         return self
 
     async def _request(self, frame: str, cid: int) -> dict[str, Any]:
-        ws, lock = self._ws, self._send_lock
-        if ws is None or lock is None:
+        link = self._link
+        if link is None:
             raise ConnectionError(self._closed_why)
-        loop = asyncio.get_running_loop()
-        request = _Request(loop.time() + self.timeout)
-        async with lock:
-            if self._ws is not ws:
-                raise ConnectionError(self._closed_why)
-            self._pending.append(request)
-            try:
-                await ws.send(frame)
-            except (ConnectionClosed, OSError, WebSocketException) as e:
-                self._drop(ws, f"the connection was closed: {e}")
-                raise ConnectionError(self._closed_why) from e
-        if self._watchdog is None:
-            self._watchdog = loop.call_at(request.deadline, self._watch, ws)
-        message = await self._response(ws, request, loop)
+        request = _Request(link.loop.time() + self.timeout)
+        link.pending.append(request)
+        try:
+            await link.ws.send(frame)
+        except (ConnectionClosed, OSError, WebSocketException) as e:
+            raise ConnectionError(self._drop(link, f"the connection was closed: {e}")) from e
+        if link.watchdog is None:
+            link.watchdog = link.loop.call_at(request.deadline, self._watch, link)
+        message = await self._response(link, request)
         try:
             return check(message, cid)
         except ConnectionError as e:
             # The server does not speak the protocol (or answered another
             # request): no later response could be trusted either.
-            self._drop(ws, str(e))
+            self._drop(link, str(e))
             raise
 
-    async def _response(self, ws: ClientConnection, request: _Request, loop: asyncio.AbstractEventLoop) -> Message:
+    async def _response(self, link: _Link, request: _Request) -> Message:
         """Waits for the response to ``request``, reading when nobody else is."""
         while request.message is None:
-            if self._reading:
-                request.waiter = loop.create_future()
+            if link.why is not None:
+                raise ConnectionError(link.why)
+            if link.reading:
+                request.waiter = link.loop.create_future()
                 await request.waiter
                 continue
-            self._reading = True
+            link.reading = True
             try:
                 while request.message is None:
-                    message = await ws.recv()
-                    if not self._pending:
-                        self._drop(ws, "the server sent a message no request was waiting for")
-                        raise ConnectionError(self._closed_why)
-                    answered = self._pending.popleft()
+                    message = await link.ws.recv()
+                    if not link.pending:
+                        raise ConnectionError(self._drop(link, "the server sent a message no request was waiting for"))
+                    answered = link.pending.popleft()
                     answered.message = message
                     if answered.waiter is not None and not answered.waiter.done():
                         answered.waiter.set_result(None)
             except ConnectionClosed as e:
-                self._drop(ws, f"the connection was closed: {e}")
-                raise ConnectionError(self._closed_why) from e
+                raise ConnectionError(self._drop(link, f"the connection was closed: {e}")) from e
             finally:
-                self._reading = False
-                self._pass_reading_on()
+                link.reading = False
+                self._pass_reading_on(link)
         return request.message
 
-    def _pass_reading_on(self) -> None:
+    @staticmethod
+    def _pass_reading_on(link: _Link) -> None:
         """Wakes the oldest caller still waiting, to read on. Callers that
         were cancelled leave their requests queued (their responses are
         still to come), so they are skipped."""
-        for request in self._pending:
+        for request in link.pending:
             waiter = request.waiter
             if waiter is not None and not waiter.done():
                 waiter.set_result(None)
                 return
 
-    def _watch(self, ws: ClientConnection) -> None:
+    def _watch(self, link: _Link) -> None:
         """The one timer: only the oldest request can be late."""
-        self._watchdog = None
-        if self._ws is not ws or not self._pending:
+        link.watchdog = None
+        if link.why is not None or not link.pending:
             return
-        oldest = self._pending[0].deadline
-        loop = asyncio.get_running_loop()
-        if oldest <= loop.time():
-            self._drop(ws, f"no response within {self.timeout} s; the connection was closed", abort=True)
+        oldest = link.pending[0].deadline
+        if oldest <= link.loop.time():
+            self._drop(link, f"no response within {self.timeout} s; the connection was closed", abort=True)
         else:
-            self._watchdog = loop.call_at(oldest, self._watch, ws)
+            link.watchdog = link.loop.call_at(oldest, self._watch, link)
 
-    def _drop(self, ws: ClientConnection, why: str, abort: bool = False) -> None:
-        """Forgets the connection (unless close() already did, whose reason
-        then stands), closes it and fails every waiting request. ``abort``
-        closes without the closing handshake, for a peer that no longer
-        answers."""
-        if self._ws is ws:
-            self._ws = None
+    def _drop(self, link: _Link, why: str, abort: bool = False) -> str:
+        """Closes the connection and fails every request waiting on it, with
+        ``why`` (unless it was dropped before: the first reason stands, and
+        is returned). ``abort`` closes without the closing handshake, for a
+        peer that no longer answers."""
+        if link.why is not None:
+            return link.why
+        link.why = why
+        if self._link is link:
+            self._link = None
             self._closed_why = why
-        if self._watchdog is not None:
-            self._watchdog.cancel()
-            self._watchdog = None
-        pending, self._pending = self._pending, deque()
+        if link.watchdog is not None:
+            link.watchdog.cancel()
+            link.watchdog = None
+        pending, link.pending = link.pending, deque()
         for request in pending:
             if request.waiter is not None and not request.waiter.done():
-                request.waiter.set_exception(ConnectionError(self._closed_why))
+                request.waiter.set_exception(ConnectionError(why))
         if abort:
-            ws.transport.abort()
-        elif ws.state is not State.CLOSED:
-            task = asyncio.get_running_loop().create_task(ws.close())
+            link.ws.transport.abort()
+        elif link.ws.state is not State.CLOSED:
+            task = link.loop.create_task(link.ws.close())
             self._closing.add(task)
             task.add_done_callback(self._closing.discard)
+        return why
 
     async def call(self, frame: str) -> dict[str, Any]:
         """Sends any frame (``"set_sp_ned 1:2:-3:0"``) as it is and returns
@@ -205,17 +221,16 @@ class AsyncClient:
     async def close(self) -> None:
         """Closes the connection (the WebSocket closing handshake); requests
         still in flight fail with ConnectionError. Idempotent."""
-        ws = self._ws
-        if ws is not None:
-            self._closed_why = "the client is closed"
-            self._drop(ws, self._closed_why)
+        link = self._link
+        if link is not None:
+            self._drop(link, "the client is closed")
         if self._closing:
             await asyncio.gather(*self._closing, return_exceptions=True)
 
     @property
     def closed(self) -> bool:
         """Whether the connection is closed, lost, or not yet open."""
-        return self._ws is None
+        return self._link is None
 
     async def __aenter__(self) -> AsyncClient:
         return await self.connect()

@@ -11,7 +11,7 @@ import time
 import pytest
 
 import lluav
-from fakeserver import FakeServer, fake_server
+from fakeserver import FakeServer, fake_server, ok_reply
 from values import INVALID, call_args
 
 
@@ -232,3 +232,31 @@ def test_cafile_is_refused_for_a_plain_ws_url():
         lluav.Client("ws://127.0.0.1:1", cafile="ca.pem")
     with pytest.raises(ValueError, match="wss://"):
         lluav.AsyncClient("ws://127.0.0.1:1", cafile="ca.pem")
+
+
+def test_closing_fails_the_calls_in_flight_and_a_dropped_client_can_connect_again():
+    def garbage_for_ver(frame: str) -> str | None:
+        if frame == "ping_me_never":
+            return None
+        return "garbage" if frame == "ver" else ok_reply(frame)
+
+    for server in fake_server(garbage_for_ver):
+
+        async def run() -> None:
+            c = await lluav.AsyncClient(server.url).connect()
+            hanging = [asyncio.ensure_future(c.call("ping_me_never")) for _ in range(5)]
+            await asyncio.sleep(0.05)
+            await c.close()
+            for call in hanging:
+                with pytest.raises(lluav.ConnectionError, match="the client is closed"):
+                    await call
+
+            await c.connect()
+            with pytest.raises(lluav.ConnectionError, match="not JSON"):
+                await c.ver()
+            assert c.closed
+            await c.connect()
+            assert (await c.state())["cmd"] == 2
+            await c.close()
+
+        asyncio.run(run())
