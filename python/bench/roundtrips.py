@@ -28,7 +28,8 @@ import sys
 import tempfile
 import time
 import timeit
-from typing import Any, Awaitable, Callable, NamedTuple
+from collections.abc import Awaitable
+from typing import Any, Callable, NamedTuple
 
 from websockets.asyncio.client import connect as aconnect
 from websockets.sync.client import connect

@@ -23,12 +23,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from ._core import Command, Param, Spec, TABLE
+from ._async import AsyncClient
+from ._core import TABLE, Command, Param, Spec
 from ._core import encode as _encode
 from ._core import parse as _parse
 from ._errors import CommandError, ConnectionError, Error, InvalidArguments, UnknownCommand
 from ._sync import DEFAULT_URL, Client
-from ._async import AsyncClient
 
 COMMANDS: tuple[Spec, ...] = TABLE
 """Every command of the protocol, in id order (``COMMANDS[id - 1]``)."""

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import asyncio
 from collections import deque
+from collections.abc import Callable, Coroutine
 from types import TracebackType
-from typing import Any, Callable, Coroutine, Optional, Union
+from typing import Any, Union
 
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, WebSocketException
@@ -29,10 +30,10 @@ class _Request:
     def __init__(self, deadline: float) -> None:
         self.deadline = deadline
         # The response, once read (by whichever request was reading).
-        self.message: Optional[Message] = None
+        self.message: Message | None = None
         # What the request's caller awaits while another one reads: woken
         # when the response is in, or when it is its turn to read.
-        self.waiter: Optional[asyncio.Future[None]] = None
+        self.waiter: asyncio.Future[None] | None = None
 
 
 class _Link:
@@ -48,9 +49,9 @@ class _Link:
         # Whether a caller is reading responses off the connection.
         self.reading = False
         # The one timer, for the oldest request's deadline.
-        self.watchdog: Optional[asyncio.TimerHandle] = None
+        self.watchdog: asyncio.TimerHandle | None = None
         # Why the connection was dropped, once it is.
-        self.why: Optional[str] = None
+        self.why: str | None = None
 
 
 class AsyncClient:

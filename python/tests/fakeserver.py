@@ -5,10 +5,12 @@ misbehaves like this, which is why the faults need a stand-in."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import ssl
 import threading
-from typing import Callable, Iterator, Optional, Union
+from collections.abc import Iterator
+from typing import Callable, Optional, Union
 
 from websockets.sync.server import Server, ServerConnection, serve
 
@@ -48,8 +50,9 @@ class FakeServer:
         self._thread.join(timeout=10)
 
 
-def fake_server(reply: Callable[[str], Reply] = ok_reply, tls: ssl.SSLContext | None = None) -> Iterator[FakeServer]:
-    """A generator for pytest fixtures."""
+@contextlib.contextmanager
+def serving(reply: Callable[[str], Reply] = ok_reply, tls: ssl.SSLContext | None = None) -> Iterator[FakeServer]:
+    """A FakeServer for the length of a `with` block."""
     server = FakeServer(reply, tls)
     try:
         yield server

@@ -15,8 +15,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-import lluav
 from values import MISSION, VALID, call_args
+
+import lluav
 
 USAGE_REFUSAL = "Invalid arguments, usage:"
 

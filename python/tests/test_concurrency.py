@@ -5,8 +5,9 @@ from __future__ import annotations
 import asyncio
 import threading
 
+from fakeserver import serving
+
 import lluav
-from fakeserver import fake_server
 
 
 def test_fifty_concurrent_calls_on_one_async_client_each_get_their_own_response(lluavd):
@@ -27,7 +28,7 @@ def test_fifty_concurrent_calls_on_one_async_client_each_get_their_own_response(
 
 
 def test_concurrent_requests_go_out_in_the_order_of_the_calls():
-    for server in fake_server():
+    with serving() as server:
 
         async def run() -> None:
             async with lluav.AsyncClient(server.url) as c:

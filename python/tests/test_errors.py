@@ -9,10 +9,10 @@ import socket
 import time
 
 import pytest
+from fakeserver import FakeServer, ok_reply, serving
+from values import INVALID, call_args
 
 import lluav
-from fakeserver import FakeServer, fake_server, ok_reply
-from values import INVALID, call_args
 
 
 def test_login_is_required_when_the_daemon_has_a_password(lluavd):
@@ -53,7 +53,11 @@ def test_gates_refuse_with_command_errors(lluavd):
         admin.admin_lock()
         with pytest.raises(lluav.CommandError) as caught:
             user.set_param("takeoff_alt", 3.0)
-        assert (caught.value.ret, caught.value.cmd, caught.value.msg) == (-1, 63, "CMD not permitted to run in LOCK mode!")
+        assert (caught.value.ret, caught.value.cmd, caught.value.msg) == (
+            -1,
+            63,
+            "CMD not permitted to run in LOCK mode!",
+        )
         assert admin.set_param("takeoff_alt", 3.0)["ret"] == 0
         admin.admin_unlock()
 
@@ -82,7 +86,7 @@ def test_unknown_commands_and_bad_frames_sent_with_call_are_command_errors(lluav
 
 
 def test_invalid_arguments_of_every_grammar_are_refused_before_anything_is_sent():
-    for server in fake_server():
+    with serving() as server:
         with lluav.Client(server.url) as c:
             for spec in lluav.COMMANDS:
                 for entry in INVALID[spec.grammar]:
@@ -178,7 +182,7 @@ def silent(frame: str) -> None:
 
 
 def test_a_response_that_does_not_come_in_time_closes_the_connection():
-    for server in fake_server(silent):
+    with serving(silent) as server:
         c = lluav.Client(server.url, timeout=0.3)
         start = time.monotonic()
         with pytest.raises(lluav.ConnectionError, match="no response within 0.3 s"):
@@ -240,7 +244,7 @@ def test_closing_fails_the_calls_in_flight_and_a_dropped_client_can_connect_agai
             return None
         return "garbage" if frame == "ver" else ok_reply(frame)
 
-    for server in fake_server(garbage_for_ver):
+    with serving(garbage_for_ver) as server:
 
         async def run() -> None:
             c = await lluav.AsyncClient(server.url).connect()

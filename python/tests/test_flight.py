@@ -42,7 +42,13 @@ def test_a_flight_with_setpoints_a_mission_and_a_landing(lluavd):
         s = wait_for(c.state, lambda s: near(s, 4, -2, -5), "the setpoint")
         assert s["armed"] and s["fsm"] == "hover"
 
-        mission = {"waypoints": [{"id": 1, "x": 0, "y": 0, "z": -4}, {"id": 2, "x": 6, "y": 0, "z": -4}, {"id": 3, "x": 6, "y": 6, "z": -6, "yaw": 1.0}]}
+        mission = {
+            "waypoints": [
+                {"id": 1, "x": 0, "y": 0, "z": -4},
+                {"id": 2, "x": 6, "y": 0, "z": -4},
+                {"id": 3, "x": 6, "y": 6, "z": -6, "yaw": 1.0},
+            ]
+        }
         assert c.mission(1001, mission)["waypoints"] == 3
         assert c.mw_list()["ext_id"] == 1001
         started = c.mw_exec(1001, [2, 3])

@@ -32,9 +32,7 @@ def run_mypy(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 
 
 def test_stubtest_finds_the_stubs_true_to_the_running_package(tmp_path):
-    done = run_mypy(
-        "mypy.stubtest", "lluav", "--allowlist", str(HERE / "stubtest-allowlist.txt"), cwd=tmp_path
-    )
+    done = run_mypy("mypy.stubtest", "lluav", "--allowlist", str(HERE / "stubtest-allowlist.txt"), cwd=tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
 
 

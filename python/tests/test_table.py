@@ -7,9 +7,9 @@ from __future__ import annotations
 import inspect
 
 import pytest
+from values import INVALID, VALID, call_args
 
 import lluav
-from values import INVALID, VALID, call_args
 
 GRAMMARS = sorted({spec.grammar for spec in lluav.COMMANDS})
 

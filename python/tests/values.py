@@ -9,7 +9,9 @@ from __future__ import annotations
 
 from typing import Any
 
-MISSION = {"waypoints": [{"id": 1, "x": 1.0, "y": 0.0, "z": -2.0}, {"id": 2, "x": 2.0, "y": 1.0, "z": -2.5, "yaw": 0.5}]}
+MISSION = {
+    "waypoints": [{"id": 1, "x": 1.0, "y": 0.0, "z": -2.0}, {"id": 2, "x": 2.0, "y": 1.0, "z": -2.5, "yaw": 0.5}]
+}
 
 # Arguments the core accepts (positional tuples or keyword dicts), with
 # every optional parameter both left out and given.
@@ -55,14 +57,65 @@ INVALID: dict[str, list[Any]] = {
     "Secret": [(), ("",), ("tab\t",), (1025,)],
     "NewPassword": [(), ("",), ("has space",), ("x" * 33,), ("nön-ascii",), (1,)],
     "ParamName": [(), ("",), ("bad name",), ("a:b",), ("x" * 65,), (1,)],
-    "SetParam": [("takeoff_alt",), ("bad name", 1), ("takeoff_alt", float("nan")), ("takeoff_alt", None), ("takeoff_alt", [1]), ("takeoff_alt", "")],
-    "Setpoint": [(1.0, 2.0, 3.0), (1.0, 2.0, 3.0, float("nan")), (1.0, 2.0, 3.0, "4"), (1, 2, 3, 4, 5), {"x": 1, "y": 2, "z": 3, "w": 4}, (1.0, 2.0, 3.0, None)],
+    "SetParam": [
+        ("takeoff_alt",),
+        ("bad name", 1),
+        ("takeoff_alt", float("nan")),
+        ("takeoff_alt", None),
+        ("takeoff_alt", [1]),
+        ("takeoff_alt", ""),
+    ],
+    "Setpoint": [
+        (1.0, 2.0, 3.0),
+        (1.0, 2.0, 3.0, float("nan")),
+        (1.0, 2.0, 3.0, "4"),
+        (1, 2, 3, 4, 5),
+        {"x": 1, "y": 2, "z": 3, "w": 4},
+        (1.0, 2.0, 3.0, None),
+    ],
     "Point": [(1.0, 2.0), (1.0, 2.0, float("inf")), (1.0, "2", 3.0)],
     "Pose": [(1.0, 2.0, 3.0), (1.0, 2.0, 3.0, float("-inf"))],
-    "Zyhk": [(), ([],), ([1.0] * 33,), ([float("nan")],), ("1.5",), (1.5,), ([1.0], (0.0, 0.0)), ([1.0], (0.0, 0.0, float("nan"))), ([1.0], "0,0,0")],
-    "Mission": [(1001,), (-1, MISSION), (2**32, MISSION), (1001, {"x": float("nan")}), (1001, {"x": object()}), (1001, '{"waypoints":[]}'), (1001, "/abs/path.json"), (1001, "../up.json"), (1001, 5), (1001, None)],
-    "MwExec": [(1001,), (1001, []), (1001, [1] * 65), (1001, [-1]), (1001, [1.5]), (1001, "1,2"), (-1, [1]), (1001, None)],
-    "Ai1Mission": [("task-1",), ("bad task", "m.json"), ("task:1", "m.json"), ("task-1", "/abs.json"), ("task-1", "../up.json"), ("", "m.json")],
+    "Zyhk": [
+        (),
+        ([],),
+        ([1.0] * 33,),
+        ([float("nan")],),
+        ("1.5",),
+        (1.5,),
+        ([1.0], (0.0, 0.0)),
+        ([1.0], (0.0, 0.0, float("nan"))),
+        ([1.0], "0,0,0"),
+    ],
+    "Mission": [
+        (1001,),
+        (-1, MISSION),
+        (2**32, MISSION),
+        (1001, {"x": float("nan")}),
+        (1001, {"x": object()}),
+        (1001, '{"waypoints":[]}'),
+        (1001, "/abs/path.json"),
+        (1001, "../up.json"),
+        (1001, 5),
+        (1001, None),
+    ],
+    "MwExec": [
+        (1001,),
+        (1001, []),
+        (1001, [1] * 65),
+        (1001, [-1]),
+        (1001, [1.5]),
+        (1001, "1,2"),
+        (-1, [1]),
+        (1001, None),
+    ],
+    "Ai1Mission": [
+        ("task-1",),
+        ("bad task", "m.json"),
+        ("task:1", "m.json"),
+        ("task-1", "/abs.json"),
+        ("task-1", "../up.json"),
+        ("", "m.json"),
+    ],
 }
 
 
