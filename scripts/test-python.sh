@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
 # The Python SDK's test run (a CI step of its own):
+#  0. lints: rustfmt and clippy for the PyO3 crate (outside the workspace,
+#     so the workspace's own checks do not cover it), ruff for the Python;
 #  1. builds the wheel with maturin (from PyPI) and installs it into a fresh
 #     virtual environment with the test dependencies (the `test` extra);
 #  2. runs python/tests against the real lluavd;
@@ -26,11 +28,16 @@ fresh_venv() {
     "$python" -m venv "$1"
 }
 
-echo "== maturin"
+echo "== tools: maturin, ruff"
 if ! "$work/tools/bin/python" -c "" 2>/dev/null; then
     fresh_venv "$work/tools"
 fi
-"$work/tools/bin/pip" install -q 'maturin>=1.9.4,<2'
+"$work/tools/bin/pip" install -q 'maturin>=1.9.4,<2' 'ruff>=0.6'
+
+echo "== lints"
+(cd python && cargo fmt --check && cargo clippy --all-targets -- -D warnings)
+"$work/tools/bin/ruff" check python
+"$work/tools/bin/ruff" format --check python
 
 echo "== wheel"
 rm -rf "$work/wheels"
