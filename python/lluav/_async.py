@@ -106,7 +106,7 @@ class AsyncClient:
             ws = await connect(
                 self.url, ssl=self._ssl, open_timeout=self.timeout, close_timeout=self.timeout, compression=None
             )
-        except (OSError, asyncio.TimeoutError, WebSocketException) as e:
+        except (OSError, TimeoutError, asyncio.TimeoutError, WebSocketException) as e:
             raise ConnectionError(f"cannot connect to {self.url}: {e}") from e
         self._link = _Link(ws, asyncio.get_running_loop())
         if self._password is not None:

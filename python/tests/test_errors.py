@@ -130,6 +130,19 @@ def test_an_unreachable_server_is_a_connection_error():
     assert issubclass(lluav.ConnectionError, ConnectionError) and issubclass(lluav.ConnectionError, lluav.Error)
 
 
+def test_a_server_that_never_completes_the_handshake_times_out_as_a_connection_error():
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        url = f"ws://127.0.0.1:{listener.getsockname()[1]}"
+        start = time.monotonic()
+        with pytest.raises(lluav.ConnectionError, match="cannot connect"):
+            lluav.Client(url, timeout=0.3)
+        with pytest.raises(lluav.ConnectionError, match="cannot connect"):
+            asyncio.run(lluav.AsyncClient(url, timeout=0.3).connect())
+        assert time.monotonic() - start < 5
+
+
 def test_a_stopped_daemon_fails_calls_with_connection_errors(lluavd):
     daemon = lluavd()
     c = lluav.Client(daemon.url)
