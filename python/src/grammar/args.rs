@@ -208,7 +208,7 @@ fn json_loads<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyAny>> {
     LOADS.import(py, "json", "loads")?.call1((text,))
 }
 
-/// The values of parsed arguments, one per parameter of [`params`], in order.
+/// The values of parsed arguments, one per parameter of [`super::params`], in order.
 pub fn values<'py>(py: Python<'py>, args: &Args<'_>) -> PyResult<Vec<Bound<'py, PyAny>>> {
     let none = || py.None().into_bound(py);
     let float = |v: f32| PyFloat::new(py, py_float(v)).into_any();

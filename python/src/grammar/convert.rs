@@ -10,7 +10,7 @@ use super::{Kind, Param};
 use crate::invalid::Invalid;
 
 /// A Python argument converted to owned Rust data, before it is borrowed
-/// into [`Args`].
+/// into [`Args`](lluav_core::Args).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Value {
     /// An optional parameter left out (or given as `None`).
