@@ -117,6 +117,42 @@ def test_numbers_travel_as_32_bit_floats_in_their_shortest_form():
     assert lluav.encode("set_param", "takeoff_alt", 2.5) == "set_param takeoff_alt:2.5"
 
 
+class Real:
+    """A number that is not a float, like numpy's float32."""
+
+    def __init__(self, value: float) -> None:
+        self.value = value
+
+    def __float__(self) -> float:
+        return self.value
+
+
+class Index:
+    """An integer that is not an int, like numpy's int64."""
+
+    def __init__(self, value: int) -> None:
+        self.value = value
+
+    def __index__(self) -> int:
+        return self.value
+
+
+def test_numbers_may_be_any_real_or_index_type_but_not_bool_or_text():
+    assert lluav.encode("set_sp_ned", Real(1.5), 0, Real(-2.0), 0.0) == "set_sp_ned 1.5:0:-2:0"
+    assert lluav.encode("zyhk", (Real(1.5), 2), land=(Real(0.5), 0, 0)) == "zyhk 1.5,2 0.5,0,0"
+    assert lluav.encode("mw_exec", Index(7), [Index(1), 2]) == "mw_exec 7:1,2"
+    assert lluav.encode("showmsg", Index(3)) == "showmsg 3"
+    for bad in [True, "1.5", b"1", None, [1.0], object()]:
+        with pytest.raises(lluav.InvalidArguments, match="x (must be a number|is required)"):
+            lluav.encode("set_sp_ned", bad, 0, 0, 0)
+    with pytest.raises(lluav.InvalidArguments, match="must be an int, not float"):
+        lluav.encode("mw_exec", 7.0, [1])
+    with pytest.raises(lluav.InvalidArguments, match="must be an integer >= 0"):
+        lluav.encode("mw_exec", Index(-1), [1])
+    with pytest.raises(lluav.InvalidArguments, match="too large"):
+        lluav.encode("set_sp_ned", 10**400, 0, 0, 0)
+
+
 def test_mission_payload_is_json_for_a_dict_or_list_and_a_path_for_a_str():
     assert lluav.encode("mission", 1, {"waypoints": [{"x": 1, "y": 2, "z": -3}]}) == (
         'mission 1:{"waypoints":[{"x":1,"y":2,"z":-3}]}'

@@ -2,6 +2,7 @@
 //! the type checks a Python caller expects (no str for a number, no bool for
 //! an int).
 
+use pyo3::exceptions::PyOverflowError;
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
@@ -39,32 +40,39 @@ fn type_name(obj: &Bound<'_, PyAny>) -> String {
         .map_or_else(|_| "object".to_owned(), |n| n.to_string())
 }
 
+/// A number: a float, an int, or anything else with `__float__` (numpy's
+/// scalars), but not a bool or text.
 fn float(name: &str, obj: &Bound<'_, PyAny>) -> Result<f32, Invalid> {
-    if obj.is_instance_of::<PyFloat>() || (obj.is_instance_of::<PyInt>() && !obj.is_instance_of::<PyBool>()) {
-        let v: f64 = obj
-            .extract()
-            .map_err(|_| Invalid::new(format!("{name} is too large")))?;
+    let wrong_type = || Invalid::new(format!("{name} must be a number, not {}", type_name(obj)));
+    if obj.is_instance_of::<PyBool>() || obj.is_instance_of::<PyString>() {
+        return Err(wrong_type());
+    }
+    match obj.extract::<f64>() {
         // The protocol carries f32; a value beyond its range becomes
         // infinite and is refused by the core as not finite.
         #[allow(clippy::cast_possible_truncation)]
-        Ok(v as f32)
-    } else {
-        Err(Invalid::new(format!(
-            "{name} must be a number, not {}",
-            type_name(obj)
-        )))
+        Ok(v) => Ok(v as f32),
+        Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => {
+            Err(Invalid::new(format!("{name} is too large")))
+        }
+        Err(_) => Err(wrong_type()),
     }
 }
 
+/// A non-negative integer: an int or anything else with `__index__`
+/// (numpy's integers), but not a bool or a float.
 fn int(name: &str, obj: &Bound<'_, PyAny>) -> Result<u64, Invalid> {
-    if !obj.is_instance_of::<PyInt>() || obj.is_instance_of::<PyBool>() {
-        return Err(Invalid::new(format!(
-            "{name} must be an int, not {}",
-            type_name(obj)
-        )));
+    let wrong_type = || Invalid::new(format!("{name} must be an int, not {}", type_name(obj)));
+    if obj.is_instance_of::<PyBool>() {
+        return Err(wrong_type());
     }
-    obj.extract::<u64>()
-        .map_err(|_| Invalid::new(format!("{name} must be an integer >= 0 that fits 32 bits")))
+    match obj.extract::<u64>() {
+        Ok(v) => Ok(v),
+        Err(e) if e.is_instance_of::<PyOverflowError>(obj.py()) => Err(Invalid::new(format!(
+            "{name} must be an integer >= 0 that fits 32 bits"
+        ))),
+        Err(_) => Err(wrong_type()),
+    }
 }
 
 fn text(name: &str, obj: &Bound<'_, PyAny>) -> Result<String, Invalid> {
