@@ -40,6 +40,11 @@ pub struct Cli {
     /// Simulation time factor: 2 runs the vehicle twice as fast. [default: 1]
     #[arg(long, value_name = "X")]
     pub sim_speed: Option<f64>,
+    /// Fly a real autopilot over MAVLink instead of the simulator. ADDRESS
+    /// in the mavlink crate's syntax: udpin:0.0.0.0:14540, udpout:HOST:PORT,
+    /// tcpout:HOST:PORT, serial:/dev/ttyACM0:57600.
+    #[arg(long, value_name = "ADDRESS")]
+    pub mavlink: Option<String>,
     /// Allow listening beyond loopback without a password.
     #[arg(long)]
     pub allow_no_password: bool,
@@ -70,6 +75,8 @@ pub struct FileConfig {
     pub data_dir: Option<PathBuf>,
     /// As `--sim-speed`.
     pub sim_speed: Option<f64>,
+    /// As `--mavlink`.
+    pub mavlink: Option<String>,
     /// As `--allow-no-password`.
     pub allow_no_password: Option<bool>,
     /// As `--max-message`.
@@ -122,6 +129,8 @@ pub struct Settings {
     pub data_dir: PathBuf,
     /// Simulation time factor.
     pub sim_speed: f64,
+    /// The autopilot's MAVLink address; `None` flies the simulator.
+    pub mavlink: Option<String>,
     /// Whether listening beyond loopback without a password is allowed.
     pub allow_no_password: bool,
     /// Connection limits.
@@ -179,6 +188,14 @@ impl Settings {
         if limits.max_connections == 0 {
             return Err(ConfigError::Invalid("--max-connections must be > 0"));
         }
+        let mavlink = cli.mavlink.or(file.mavlink);
+        if let Some(address) = &mavlink
+            && ::mavlink::ConnectionAddress::parse_address(address).is_err()
+        {
+            return Err(ConfigError::Invalid(
+                "--mavlink must be udpin:HOST:PORT, udpout:HOST:PORT, tcpout:HOST:PORT or serial:DEVICE:BAUD",
+            ));
+        }
         if limits.idle_timeout.is_zero() {
             return Err(ConfigError::Invalid("--idle-timeout must be > 0"));
         }
@@ -196,6 +213,7 @@ impl Settings {
                 .logout_password
                 .unwrap_or_else(|| lluav_core::session::DEFAULT_LOGOUT_PASSWORD.to_owned()),
             echo: cli.echo,
+            mavlink,
         })
     }
 }

@@ -16,8 +16,9 @@ use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
 use tracing::{error, info};
 
-use crate::companion::CompanionConfig;
+use crate::companion::{Companion, CompanionConfig};
 use crate::config::Settings;
+use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
 use crate::onboard::Onboard;
 use crate::recent_log::RecentLog;
 use crate::sim::Simulator;
@@ -182,6 +183,14 @@ pub enum DaemonError {
     /// Persisting state at shutdown failed.
     #[error("cannot persist the vehicle's state at shutdown: {0}")]
     Flush(std::io::Error),
+    /// The autopilot's MAVLink link could not be opened.
+    #[error("cannot open the MAVLink link {address}: {source}")]
+    Mavlink {
+        /// The `--mavlink` address.
+        address: String,
+        /// Why.
+        source: std::io::Error,
+    },
 }
 
 enum Mode<V> {
@@ -216,6 +225,33 @@ impl Daemon<Onboard<Simulator>> {
             Some(onboard)
         };
         Daemon::with_vehicle(settings, vehicle).await
+    }
+}
+
+impl Daemon<Onboard<MavlinkVehicle>> {
+    /// Opens the companion computer and the MAVLink link to the autopilot
+    /// at `address`, decides the password and binds the listener.
+    pub async fn open_mavlink(
+        settings: &Settings,
+        log: RecentLog,
+        address: &str,
+    ) -> Result<Self, DaemonError> {
+        let companion = Companion::open(CompanionConfig {
+            data_dir: settings.data_dir.clone(),
+            log,
+            password_pinned: settings.password.is_some(),
+        })
+        .map_err(|source| DaemonError::Open {
+            dir: settings.data_dir.clone(),
+            source,
+        })?;
+        let vehicle = MavlinkVehicle::open(MavlinkConfig::new(address))
+            .await
+            .map_err(|source| DaemonError::Mavlink {
+                address: address.to_owned(),
+                source,
+            })?;
+        Daemon::with_vehicle(settings, Some(Onboard::new(companion, vehicle))).await
     }
 }
 

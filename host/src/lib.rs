@@ -16,6 +16,7 @@ pub mod client;
 pub mod companion;
 pub mod config;
 pub mod daemon;
+pub mod mavlink;
 pub mod onboard;
 pub mod recent_log;
 pub mod sim;

@@ -10,9 +10,9 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use lluav_host::config::{Cli, Settings};
-use lluav_host::daemon::Daemon;
+use lluav_host::daemon::{Daemon, DaemonError, Vehicle};
 use lluav_host::recent_log::RecentLog;
-use tokio::signal::unix::{SignalKind, signal};
+use tokio::signal::unix::{Signal, SignalKind, signal};
 use tracing::{error, info};
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
@@ -52,14 +52,34 @@ fn main() -> ExitCode {
 async fn run(settings: Settings, log: RecentLog) -> ExitCode {
     // Signal handlers go in before the "listening" line, so that a
     // supervisor may signal as soon as it has read it.
-    let (mut term, mut int) = match (signal(SignalKind::terminate()), signal(SignalKind::interrupt())) {
+    let (term, int) = match (signal(SignalKind::terminate()), signal(SignalKind::interrupt())) {
         (Ok(t), Ok(i)) => (t, i),
         (Err(e), _) | (_, Err(e)) => {
             eprintln!("lluavd: cannot install signal handlers: {e}");
             return ExitCode::FAILURE;
         }
     };
-    let daemon = match Daemon::open(&settings, log).await {
+    let signals = (term, int);
+    match settings.mavlink.clone() {
+        Some(address) => {
+            serve(
+                Daemon::open_mavlink(&settings, log, &address).await,
+                &settings,
+                signals,
+            )
+            .await
+        }
+        None => serve(Daemon::open(&settings, log).await, &settings, signals).await,
+    }
+}
+
+/// Serves an opened daemon until SIGINT or SIGTERM.
+async fn serve<V: Vehicle>(
+    opened: Result<Daemon<V>, DaemonError>,
+    settings: &Settings,
+    (mut term, mut int): (Signal, Signal),
+) -> ExitCode {
+    let daemon = match opened {
         Ok(d) => d,
         Err(e) => {
             eprintln!("lluavd: {e}");
@@ -73,7 +93,7 @@ async fn run(settings: Settings, log: RecentLog) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    info!(%addr, data_dir = %settings.data_dir.display(), sim_speed = settings.sim_speed, "lluavd ready");
+    info!(%addr, data_dir = %settings.data_dir.display(), mavlink = settings.mavlink.as_deref().unwrap_or("-"), "lluavd ready");
     let mut stdout = std::io::stdout().lock();
     if writeln!(stdout, "listening on ws://{addr}")
         .and_then(|()| stdout.flush())

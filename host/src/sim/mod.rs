@@ -20,7 +20,7 @@ mod camera;
 mod devices;
 mod error;
 mod flight;
-mod mission;
+pub(crate) mod mission;
 mod params;
 mod pilot;
 mod reports;

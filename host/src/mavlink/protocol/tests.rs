@@ -1,0 +1,356 @@
+//! The protocols against a fake autopilot whose answers a test scripts;
+//! tokio's clock is paused, so timeouts pass instantly and exactly.
+
+use std::sync::Mutex;
+
+use ::mavlink::dialects::ardupilotmega::{
+    COMMAND_ACK_DATA, MISSION_REQUEST_INT_DATA, MavFrame, PARAM_ERROR_DATA,
+};
+
+use super::*;
+use crate::onboard::Refusal;
+
+const AUTOPILOT: Target = Target {
+    system: 1,
+    component: 1,
+};
+
+type Script = Box<dyn FnMut(&MavMessage, usize) -> Vec<MavMessage> + Send>;
+
+/// A link to a scripted autopilot: each sent message is recorded and the
+/// script's answers (given the message and how many were sent before it)
+/// arrive from the autopilot's address.
+struct Fake {
+    sent: Mutex<Vec<MavMessage>>,
+    feed: broadcast::Sender<Arc<Incoming>>,
+    script: Mutex<Script>,
+}
+
+impl Fake {
+    fn new(script: impl FnMut(&MavMessage, usize) -> Vec<MavMessage> + Send + 'static) -> Arc<Fake> {
+        Arc::new(Fake {
+            sent: Mutex::new(Vec::new()),
+            feed: broadcast::channel(64).0,
+            script: Mutex::new(Box::new(script)),
+        })
+    }
+
+    fn from_autopilot(&self, msg: MavMessage) {
+        let header = MavHeader {
+            system_id: AUTOPILOT.system.into(),
+            component_id: AUTOPILOT.component,
+            sequence: 0,
+        };
+        let _ = self.feed.send(Arc::new(Incoming { header, msg }));
+    }
+
+    fn sent(&self) -> Vec<MavMessage> {
+        self.sent.lock().unwrap().clone()
+    }
+}
+
+impl Port for Arc<Fake> {
+    async fn send(&self, msg: MavMessage) -> Result<(), MavError> {
+        let n = {
+            let mut sent = self.sent.lock().unwrap();
+            sent.push(msg.clone());
+            sent.len() - 1
+        };
+        let answers = (self.script.lock().unwrap())(&msg, n);
+        for a in answers {
+            self.from_autopilot(a);
+        }
+        Ok(())
+    }
+
+    fn subscribe(&self) -> broadcast::Receiver<Arc<Incoming>> {
+        self.feed.subscribe()
+    }
+
+    fn target(&self) -> Result<Target, MavError> {
+        Ok(AUTOPILOT)
+    }
+}
+
+fn ack(command: MavCmd, result: MavResult) -> MavMessage {
+    MavMessage::COMMAND_ACK(COMMAND_ACK_DATA { command, result })
+}
+
+fn confirmations(sent: &[MavMessage]) -> Vec<u8> {
+    sent.iter()
+        .filter_map(|m| match m {
+            MavMessage::COMMAND_LONG(c) => Some(c.confirmation),
+            _ => None,
+        })
+        .collect()
+}
+
+const ARM: MavCmd = MavCmd::MAV_CMD_COMPONENT_ARM_DISARM;
+
+#[tokio::test(start_paused = true)]
+async fn an_acknowledged_command_is_sent_once_to_the_autopilot() {
+    let port = Fake::new(|_, _| vec![ack(ARM, MavResult::MAV_RESULT_ACCEPTED)]);
+    command(
+        &port,
+        &Timing::default(),
+        ARM,
+        [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    )
+    .await
+    .unwrap();
+    let sent = port.sent();
+    assert_eq!(confirmations(&sent), [0]);
+    let MavMessage::COMMAND_LONG(c) = &sent[0] else {
+        panic!("{sent:?}")
+    };
+    assert_eq!((c.target_system, c.target_component, c.param1), (1, 1, 1.0));
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_unanswered_command_is_resent_with_the_confirmation_counting_up() {
+    let port = Fake::new(|_, n| {
+        if n == 2 {
+            vec![ack(ARM, MavResult::MAV_RESULT_ACCEPTED)]
+        } else {
+            vec![]
+        }
+    });
+    let started = Instant::now();
+    command(&port, &Timing::default(), ARM, [0.0; 7]).await.unwrap();
+    assert_eq!(confirmations(&port.sent()), [0, 1, 2]);
+    assert_eq!(started.elapsed(), Timing::default().ack * 2);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_silent_autopilot_is_no_answer_after_every_attempt() {
+    let port = Fake::new(|_, _| vec![]);
+    let err = command(&port, &Timing::default(), ARM, [0.0; 7])
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err,
+        MavError::NoAnswer("no COMMAND_ACK for MAV_CMD_COMPONENT_ARM_DISARM after 3 attempts".into())
+    );
+    assert_eq!(err.ret().code(), -3);
+    assert_eq!(confirmations(&port.sent()), [0, 1, 2]);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_refusal_names_the_mav_result_and_is_not_retried() {
+    let port = Fake::new(|_, _| vec![ack(ARM, MavResult::MAV_RESULT_TEMPORARILY_REJECTED)]);
+    let err = command(&port, &Timing::default(), ARM, [0.0; 7])
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "MAV_CMD_COMPONENT_ARM_DISARM refused by the autopilot: MAV_RESULT_TEMPORARILY_REJECTED"
+    );
+    assert_eq!(err.ret().code(), -1);
+    assert_eq!(port.sent().len(), 1);
+}
+
+#[tokio::test(start_paused = true)]
+async fn acks_for_other_commands_or_from_other_systems_are_not_taken() {
+    let port = Fake::new(|_, _| vec![ack(MavCmd::MAV_CMD_NAV_LAND, MavResult::MAV_RESULT_ACCEPTED)]);
+    let stranger = port.feed.clone();
+    let p = Arc::clone(&port);
+    let task = tokio::spawn(async move { command(&p, &Timing::default(), ARM, [0.0; 7]).await });
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let header = MavHeader {
+        system_id: 2,
+        component_id: 1,
+        sequence: 0,
+    };
+    let msg = ack(ARM, MavResult::MAV_RESULT_ACCEPTED);
+    let _ = stranger.send(Arc::new(Incoming { header, msg }));
+    assert!(matches!(task.await.unwrap(), Err(MavError::NoAnswer(_))));
+}
+
+#[tokio::test(start_paused = true)]
+async fn in_progress_stops_the_resending_and_waits_for_the_final_answer() {
+    let port = Fake::new(|_, _| vec![ack(ARM, MavResult::MAV_RESULT_IN_PROGRESS)]);
+    let p = Arc::clone(&port);
+    tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_secs(10)).await;
+        p.from_autopilot(ack(ARM, MavResult::MAV_RESULT_ACCEPTED));
+    });
+    command(&port, &Timing::default(), ARM, [0.0; 7]).await.unwrap();
+    assert_eq!(confirmations(&port.sent()), [0]);
+}
+
+fn waypoints(n: u16) -> Vec<MISSION_ITEM_INT_DATA> {
+    (0..n)
+        .map(|i| {
+            mission_item(
+                MavCmd::MAV_CMD_NAV_WAYPOINT,
+                MavFrame::MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                [0.0; 4],
+                (i32::from(i), 0, 5.0),
+            )
+        })
+        .collect()
+}
+
+fn request(seq: u16) -> MavMessage {
+    MavMessage::MISSION_REQUEST_INT(MISSION_REQUEST_INT_DATA {
+        seq,
+        target_system: 255,
+        target_component: 0,
+    })
+}
+
+fn mission_ack(result: MavMissionResult) -> MavMessage {
+    MavMessage::MISSION_ACK(MISSION_ACK_DATA {
+        target_system: 255,
+        target_component: 0,
+        mavtype: result,
+    })
+}
+
+/// An autopilot that requests every item in turn and accepts at the end;
+/// `drop` names a sent-message index it ignores (a lost message).
+fn obedient(count: u16, drop: Option<usize>) -> impl FnMut(&MavMessage, usize) -> Vec<MavMessage> + Send {
+    move |m, n| {
+        if Some(n) == drop {
+            return vec![];
+        }
+        match m {
+            MavMessage::MISSION_COUNT(_) => vec![request(0)],
+            MavMessage::MISSION_ITEM_INT(i) if i.seq + 1 < count => vec![request(i.seq + 1)],
+            MavMessage::MISSION_ITEM_INT(_) => vec![mission_ack(MavMissionResult::MAV_MISSION_ACCEPTED)],
+            _ => vec![],
+        }
+    }
+}
+
+fn item_seqs(sent: &[MavMessage]) -> Vec<u16> {
+    sent.iter()
+        .filter_map(|m| match m {
+            MavMessage::MISSION_ITEM_INT(i) => Some(i.seq),
+            _ => None,
+        })
+        .collect()
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_mission_is_uploaded_item_by_item_as_requested() {
+    let port = Fake::new(obedient(3, None));
+    upload_mission(&port, &Timing::default(), &waypoints(3))
+        .await
+        .unwrap();
+    let sent = port.sent();
+    assert!(matches!(&sent[0], MavMessage::MISSION_COUNT(c) if c.count == 3 && c.target_system == 1));
+    assert_eq!(item_seqs(&sent), [0, 1, 2]);
+    let MavMessage::MISSION_ITEM_INT(second) = &sent[2] else {
+        panic!()
+    };
+    assert_eq!(
+        (second.x, second.target_system, second.target_component),
+        (1, 1, 1)
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_lost_mission_item_is_sent_again() {
+    // The autopilot never sees the second item (sent message 2).
+    let port = Fake::new(obedient(3, Some(2)));
+    upload_mission(&port, &Timing::default(), &waypoints(3))
+        .await
+        .unwrap();
+    assert_eq!(item_seqs(&port.sent()), [0, 1, 1, 2]);
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_item_the_autopilot_asks_for_twice_is_sent_twice() {
+    let mut asked_again = false;
+    let port = Fake::new(move |m, _| match m {
+        MavMessage::MISSION_COUNT(_) => vec![request(0)],
+        MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 && !asked_again => {
+            asked_again = true;
+            vec![request(0)]
+        }
+        MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 => vec![request(1)],
+        MavMessage::MISSION_ITEM_INT(_) => vec![mission_ack(MavMissionResult::MAV_MISSION_ACCEPTED)],
+        _ => vec![],
+    });
+    upload_mission(&port, &Timing::default(), &waypoints(2))
+        .await
+        .unwrap();
+    assert_eq!(item_seqs(&port.sent()), [0, 0, 1]);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_link_that_dies_mid_upload_is_no_answer_and_the_upload_is_cancelled() {
+    let port = Fake::new(|m, _| match m {
+        MavMessage::MISSION_COUNT(_) => vec![request(0)],
+        MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 => vec![request(1)],
+        _ => vec![],
+    });
+    let err = upload_mission(&port, &Timing::default(), &waypoints(3))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err,
+        MavError::NoAnswer("mission upload stalled after mission item 1 of 3 (5 attempts)".into())
+    );
+    let sent = port.sent();
+    assert_eq!(item_seqs(&sent), [0, 1, 1, 1, 1, 1]);
+    assert!(matches!(
+        sent.last(),
+        Some(MavMessage::MISSION_ACK(a)) if a.mavtype == MavMissionResult::MAV_MISSION_OPERATION_CANCELLED
+    ));
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_mission_the_autopilot_cannot_hold_is_invalid_arguments() {
+    let port = Fake::new(|_, _| vec![mission_ack(MavMissionResult::MAV_MISSION_NO_SPACE)]);
+    let err = upload_mission(&port, &Timing::default(), &waypoints(2))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "Invalid arguments: the autopilot refused the mission: MAV_MISSION_NO_SPACE"
+    );
+    assert_eq!(err.ret().code(), -2);
+}
+
+fn value(name: &str, v: f32) -> MavMessage {
+    MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+        param_value: v,
+        param_count: 1,
+        param_index: 0,
+        param_id: name.into(),
+        param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+    })
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_parameter_is_read_by_name_and_other_names_are_ignored() {
+    let port = Fake::new(|_, n| {
+        if n == 0 {
+            vec![value("OTHER", 1.0)]
+        } else {
+            vec![value("MPC_XY_VEL_MAX", 12.0)]
+        }
+    });
+    let v = read_param(&port, &Timing::default(), "MPC_XY_VEL_MAX")
+        .await
+        .unwrap();
+    assert_eq!(v.param_value, 12.0);
+    assert_eq!(port.sent().len(), 2);
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_unknown_parameter_is_invalid_arguments_when_the_autopilot_says_so() {
+    let port = Fake::new(|_, _| {
+        vec![MavMessage::PARAM_ERROR(PARAM_ERROR_DATA {
+            param_index: -1,
+            target_system: 255,
+            target_component: 0,
+            param_id: "NOPE".into(),
+            error: MavParamError::MAV_PARAM_ERROR_DOES_NOT_EXIST,
+        })]
+    });
+    let err = read_param(&port, &Timing::default(), "NOPE").await.unwrap_err();
+    assert_eq!(err.to_string(), "Invalid arguments: unknown parameter NOPE");
+}
