@@ -1,0 +1,119 @@
+"""Fixtures: the real lluavd (LLUAVD=path, default target/debug/lluavd)
+on a free WebSocket port, flying the autopilot on a free UDP port over
+real UDP, and WebSocket clients for it."""
+
+import contextlib
+import json
+import os
+import pathlib
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+from websockets.sync.client import connect
+
+HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+ROOT = HERE.parent.parent
+PASSWORD = "mavlink-test"
+
+
+def free_udp_port():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(what, predicate, timeout=20.0, every=0.05):
+    """Polls `predicate` until it returns something truthy; fails after
+    `timeout` seconds (generous: the machine is shared and noisy)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(every)
+
+
+class Client:
+    """One WebSocket session: `cmd` sends a frame and returns the JSON reply."""
+
+    def __init__(self, url):
+        self._stack = contextlib.ExitStack()
+        self.ws = self._stack.enter_context(connect(url, open_timeout=10, close_timeout=5))
+
+    def cmd(self, text, timeout=30.0):
+        self.ws.send(text)
+        return json.loads(self.ws.recv(timeout=timeout))
+
+    def ok(self, text, timeout=30.0):
+        reply = self.cmd(text, timeout)
+        assert reply["ret"] == 0, f"{text}: {reply}"
+        return reply
+
+    def state(self):
+        return self.ok("state")["state"]
+
+    def close(self):
+        self._stack.close()
+
+
+class Daemon:
+    """lluavd with --mavlink udpin on `port`."""
+
+    def __init__(self, tmp, port):
+        exe = os.environ.get("LLUAVD", str(ROOT / "target" / "debug" / "lluavd"))
+        self.log = open(tmp / "lluavd.log", "w")
+        env = dict(os.environ, RUST_LOG=os.environ.get("RUST_LOG", "info,lluav_host::mavlink=debug"))
+        self.proc = subprocess.Popen(
+            [exe, "--mavlink", f"udpin:127.0.0.1:{port}", "--bind", "127.0.0.1:0",
+             "--data-dir", str(tmp / "data"), "--password", PASSWORD],
+            stdout=subprocess.PIPE, stderr=self.log, text=True, env=env)
+        line = self.proc.stdout.readline()
+        assert line.startswith("listening on "), f"lluavd did not start: {line!r}"
+        self.url = line.split()[-1]
+        self.clients = []
+
+    def client(self, login=True):
+        c = Client(self.url)
+        self.clients.append(c)
+        if login:
+            c.ok(f"login {PASSWORD}")
+        return c
+
+    def stop(self):
+        for c in self.clients:
+            try:
+                c.close()
+            except Exception:
+                pass
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.log.close()
+
+
+@pytest.fixture
+def udp_port():
+    return free_udp_port()
+
+
+@pytest.fixture
+def daemon_factory(tmp_path):
+    started = []
+
+    def start(port):
+        d = Daemon(tmp_path, port)
+        started.append(d)
+        return d
+
+    yield start
+    for d in started:
+        d.stop()
