@@ -1,0 +1,144 @@
+"""A small autopilot made with pymavlink that misbehaves on purpose:
+delayed, refused or missing COMMAND_ACKs, lost mission items, a link that
+dies in the middle of a mission upload. Its heartbeat says PX4 by
+default, or ArduPilot, so both flavours' paths are exercised."""
+
+import os
+import threading
+import time
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
+
+HOME = (47.397742, 8.545594, 488.0)
+
+
+class FaultyAutopilot:
+    """An autopilot on `udpout:127.0.0.1:port` whose answers a test sets:
+
+    - `ack_delay[cmd] = s`: acknowledge `cmd` only after `s` seconds;
+    - `ack_result[cmd] = r`: answer `cmd` with MAV_RESULT `r`, or never if None;
+    - `drop_item_once`: mission item seqs ignored the first time they arrive;
+    - `die_after_item`: after this mission item, fall silent for good;
+    - `mission_result`: the MISSION_ACK result at the end of an upload;
+    - `params`: name -> (raw float on the wire, MAV_PARAM_TYPE).
+    Everything received is in `received` (monotonic time, message).
+    """
+
+    def __init__(self, port, autopilot=mav.MAV_AUTOPILOT_PX4):
+        self.conn = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", source_system=1, source_component=1, dialect="ardupilotmega")
+        self.autopilot = autopilot
+        self.lock = threading.Lock()
+        self.received = []
+        self.ack_delay = {}
+        self.ack_result = {}
+        self.drop_item_once = set()
+        self.die_after_item = None
+        self.mission_result = mav.MAV_MISSION_ACCEPTED
+        self.params = {}
+        self.mission = []
+        self.mission_count = 0
+        self.armed = False
+        self.custom_mode = 0
+        self.silent = threading.Event()
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=f, daemon=True) for f in (self._beat, self._listen)]
+        for t in self._threads:
+            t.start()
+
+    def _send(self, fn, *args, **kwargs):
+        if not self.silent.is_set():
+            with self.lock:
+                fn(*args, **kwargs)
+
+    def _beat(self):
+        m = self.conn.mav
+        while not self._stop.is_set():
+            base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+            if self.armed:
+                base |= mav.MAV_MODE_FLAG_SAFETY_ARMED
+            self._send(m.heartbeat_send, mav.MAV_TYPE_QUADROTOR, self.autopilot, base,
+                       self.custom_mode, mav.MAV_STATE_STANDBY)
+            lat, lon = int(HOME[0] * 1e7), int(HOME[1] * 1e7)
+            self._send(m.home_position_send, lat, lon, int(HOME[2] * 1000), 0.0, 0.0, 0.0,
+                       [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+            self._stop.wait(0.5)
+
+    def _listen(self):
+        while not self._stop.is_set():
+            msg = self.conn.recv_match(blocking=True, timeout=0.1)
+            if msg is None or self.silent.is_set():
+                continue
+            with self.lock:
+                self.received.append((time.monotonic(), msg))
+            handler = getattr(self, "_on_" + msg.get_type(), None)
+            if handler:
+                handler(msg)
+
+    def _on_COMMAND_LONG(self, msg):
+        cmd = msg.command
+        result = self.ack_result.get(cmd, mav.MAV_RESULT_ACCEPTED)
+        if result is None:
+            return
+        if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM and result == mav.MAV_RESULT_ACCEPTED:
+            self.armed = msg.param1 == 1.0
+        if cmd == mav.MAV_CMD_DO_SET_MODE and result == mav.MAV_RESULT_ACCEPTED:
+            self.custom_mode = int(msg.param2)
+        ack = (self.conn.mav.command_ack_send, cmd, result, 0, 0, msg.get_srcSystem(),
+               msg.get_srcComponent())
+        delay = self.ack_delay.get(cmd, 0)
+        if delay:
+            threading.Timer(delay, self._send, ack).start()
+        else:
+            self._send(*ack)
+
+    def _on_MISSION_COUNT(self, msg):
+        self.mission_count = msg.count
+        self.mission = []
+        self._send(self.conn.mav.mission_request_int_send, msg.get_srcSystem(),
+                   msg.get_srcComponent(), 0)
+
+    def _on_MISSION_ITEM_INT(self, msg):
+        if msg.seq in self.drop_item_once:
+            self.drop_item_once.discard(msg.seq)
+            return
+        if msg.seq == len(self.mission):
+            self.mission.append(msg)
+        if self.die_after_item is not None and msg.seq >= self.die_after_item:
+            self.silent.set()
+            return
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if len(self.mission) < self.mission_count:
+            self._send(self.conn.mav.mission_request_int_send, *src, len(self.mission))
+        else:
+            self._send(self.conn.mav.mission_ack_send, *src, self.mission_result)
+
+    def _param_value(self, name):
+        raw, ty = self.params[name]
+        index = list(self.params).index(name)
+        self._send(self.conn.mav.param_value_send, name.encode(), raw, ty, len(self.params), index)
+
+    def _on_PARAM_REQUEST_READ(self, msg):
+        if msg.param_id in self.params:
+            self._param_value(msg.param_id)
+
+    def _on_PARAM_SET(self, msg):
+        if msg.param_id in self.params:
+            self.params[msg.param_id] = (msg.param_value, msg.param_type)
+            self._param_value(msg.param_id)
+
+    def commands(self, cmd):
+        with self.lock:
+            return [m for _, m in self.received if m.get_type() == "COMMAND_LONG" and m.command == cmd]
+
+    def messages(self, kind):
+        with self.lock:
+            return [m for _, m in self.received if m.get_type() == kind]
+
+    def close(self):
+        self._stop.set()
+        for t in self._threads:
+            t.join()
+        self.conn.close()
