@@ -12,11 +12,12 @@ must target component 1; HOME_POSITION.altitude is pre-scaled by 1e6.
 """
 
 import json
+import logging
 import math
 import threading
 import time
 
-from mavsdk import ComponentType, Configuration, Mavsdk
+from mavsdk import ComponentType, Configuration, LogLevel, Mavsdk, log_subscribe
 from mavsdk.plugins.action_server.action_server import (
     ActionServer,
     ActionServerResult,
@@ -44,6 +45,19 @@ from mavsdk.plugins.telemetry_server.telemetry_server import (
 )
 
 import geo
+
+log = logging.getLogger("mavsdk")
+
+
+def _route_log(level, message, file, line):
+    """MAVSDK's own log into Python's (pytest shows it for failed tests)."""
+    py_level = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
+                LogLevel.WARN: logging.WARNING}.get(level, logging.ERROR)
+    log.log(py_level, "%s (%s:%s)", message, file, line)
+    return True
+
+
+log_subscribe(_route_log)
 
 HOME = (47.397742, 8.545594, 488.0)
 TAKEOFF_CLIMB = 1.5  # m/s

@@ -81,10 +81,11 @@ def test_takeoff_arms_and_climbs(flight):
     _, autopilot, client = flight
     r = client.ok("takeoff")
     assert r["target_alt"] == 2.5
-    arm = autopilot.commands_named(MAV_CMD_COMPONENT_ARM_DISARM)
-    assert arm and arm[-1]["param1"] == 1.0
-    takeoff = autopilot.commands_named(MAV_CMD_NAV_TAKEOFF)
-    assert takeoff and takeoff[-1]["param7"] == pytest.approx(HOME[2] + 2.5)
+    # MAVSDK may call back after its COMMAND_ACK went out: wait for it.
+    arm = wait_for("ARM seen", lambda: autopilot.commands_named(MAV_CMD_COMPONENT_ARM_DISARM))
+    assert arm[-1]["param1"] == 1.0
+    takeoff = wait_for("NAV_TAKEOFF seen", lambda: autopilot.commands_named(MAV_CMD_NAV_TAKEOFF))
+    assert takeoff[-1]["param7"] == pytest.approx(HOME[2] + 2.5)
     state = wait_for("hovering at 2.5 m",
                      lambda: (s := client.state())["fsm"] == "hover" and s)
     assert state["armed"] is True
@@ -101,8 +102,8 @@ def test_setpoints_are_streamed_and_followed(flight):
     _, autopilot, client = flight
     r = client.ok("set_sp_ned 3:2:-4:0.5")
     assert r["sp"] == {"x": 3.0, "y": 2.0, "z": -4.0, "yaw": 0.5}
-    modes = [c for c in autopilot.commands_named(MAV_CMD_DO_SET_MODE) if c["param2"] == 6.0]
-    assert modes, "no DO_SET_MODE OFFBOARD"
+    wait_for("DO_SET_MODE OFFBOARD seen", lambda: [
+        c for c in autopilot.commands_named(MAV_CMD_DO_SET_MODE) if c["param2"] == 6.0])
     start = time.monotonic()
     time.sleep(2.0)
     with autopilot.lock:
@@ -175,11 +176,12 @@ def test_land_then_disarm(flight):
     daemon, autopilot, _ = flight
     client = _client(daemon)
     client.ok("land")
-    assert autopilot.commands_named(MAV_CMD_NAV_LAND)
+    wait_for("NAV_LAND seen", lambda: autopilot.commands_named(MAV_CMD_NAV_LAND))
     wait_for("landed", lambda: client.state()["landed"] in ("on_ground",), timeout=30)
-    client.cmd("disarm")
-    disarms = [c for c in autopilot.commands_named(MAV_CMD_COMPONENT_ARM_DISARM) if c["param1"] == 0.0]
-    assert disarms and disarms[-1]["param2"] == FORCE_DISARM
+    client.ok("disarm")
+    disarms = wait_for("DISARM seen", lambda: [
+        c for c in autopilot.commands_named(MAV_CMD_COMPONENT_ARM_DISARM) if c["param1"] == 0.0])
+    assert disarms[-1]["param2"] == FORCE_DISARM
     wait_for("disarmed in the heartbeat", lambda: client.state()["armed"] is False)
 
 
