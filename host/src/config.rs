@@ -265,6 +265,21 @@ mod tests {
     }
 
     #[test]
+    fn a_mavlink_address_outside_the_crates_syntax_is_refused() {
+        let ok = Settings::merge(
+            cli(&["--mavlink", "udpin:0.0.0.0:14540", "--data-dir", "/tmp/x"]),
+            FileConfig::default(),
+        )
+        .expect("valid");
+        assert_eq!(ok.mavlink.as_deref(), Some("udpin:0.0.0.0:14540"));
+        let err = Settings::merge(
+            cli(&["--mavlink", "/dev/ttyACM0", "--data-dir", "/tmp/x"]),
+            FileConfig::default(),
+        );
+        assert!(matches!(err, Err(ConfigError::Invalid(_))));
+    }
+
+    #[test]
     fn non_positive_sim_speed_is_refused() {
         let err = Settings::merge(
             cli(&["--sim-speed", "0", "--data-dir", "/tmp/x"]),

@@ -63,14 +63,14 @@ class Client:
 
 
 class Daemon:
-    """lluavd with --mavlink udpin on `port`."""
+    """lluavd with --mavlink udpin on `port`, or at `address`."""
 
-    def __init__(self, tmp, port):
+    def __init__(self, tmp, port, address=None):
         exe = os.environ.get("LLUAVD", str(ROOT / "target" / "debug" / "lluavd"))
         self.log = open(tmp / "lluavd.log", "w")
         env = dict(os.environ, RUST_LOG=os.environ.get("RUST_LOG", "info,lluav_host::mavlink=debug"))
         self.proc = subprocess.Popen(
-            [exe, "--mavlink", f"udpin:127.0.0.1:{port}", "--bind", "127.0.0.1:0",
+            [exe, "--mavlink", address or f"udpin:127.0.0.1:{port}", "--bind", "127.0.0.1:0",
              "--data-dir", str(tmp / "data"), "--password", PASSWORD],
             stdout=subprocess.PIPE, stderr=self.log, text=True, env=env)
         line = self.proc.stdout.readline()
@@ -109,11 +109,32 @@ def udp_port():
 def daemon_factory(tmp_path):
     started = []
 
-    def start(port):
-        d = Daemon(tmp_path, port)
+    def start(port, address=None):
+        d = Daemon(tmp_path, port, address)
         started.append(d)
         return d
 
     yield start
     for d in started:
         d.stop()
+
+
+@pytest.fixture
+def vehicle(daemon_factory, udp_port):
+    """make(autopilot=PX4) -> (daemon, pymavlink autopilot, logged-in client),
+    the link up and home known."""
+    from fault_autopilot import FaultyAutopilot, mav
+
+    made = []
+
+    def make(autopilot=mav.MAV_AUTOPILOT_PX4):
+        daemon = daemon_factory(udp_port)
+        ap = FaultyAutopilot(udp_port, autopilot)
+        made.append(ap)
+        client = daemon.client()
+        wait_for("link up with home", lambda: (s := client.state())["link"] == "up" and s["home_global"])
+        return daemon, ap, client
+
+    yield make
+    for ap in made:
+        ap.close()

@@ -15,7 +15,7 @@ HOME = (47.397742, 8.545594, 488.0)
 
 
 class FaultyAutopilot:
-    """An autopilot on `udpout:127.0.0.1:port` whose answers a test sets:
+    """An autopilot on `udpout:127.0.0.1:port` (or another `transport`) whose answers a test sets:
 
     - `ack_delay[cmd] = s`: acknowledge `cmd` only after `s` seconds;
     - `ack_result[cmd] = r`: answer `cmd` with MAV_RESULT `r`, or never if None;
@@ -26,9 +26,9 @@ class FaultyAutopilot:
     Everything received is in `received` (monotonic time, message).
     """
 
-    def __init__(self, port, autopilot=mav.MAV_AUTOPILOT_PX4):
+    def __init__(self, port, autopilot=mav.MAV_AUTOPILOT_PX4, transport="udpout"):
         self.conn = mavutil.mavlink_connection(
-            f"udpout:127.0.0.1:{port}", source_system=1, source_component=1, dialect="ardupilotmega")
+            f"{transport}:127.0.0.1:{port}", source_system=1, source_component=1, dialect="ardupilotmega")
         self.autopilot = autopilot
         self.lock = threading.Lock()
         self.received = []

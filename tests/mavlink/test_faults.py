@@ -17,24 +17,6 @@ TAKEOFF = mav.MAV_CMD_NAV_TAKEOFF
 MISSION = '{"waypoints":[{"x":5,"y":0,"z":-3},{"x":5,"y":5,"z":-3},{"x":0,"y":5,"z":-4}]}'
 
 
-@pytest.fixture
-def vehicle(daemon_factory, udp_port):
-    """(daemon, autopilot, logged-in client) with the link up."""
-    made = []
-
-    def make(autopilot=mav.MAV_AUTOPILOT_PX4):
-        daemon = daemon_factory(udp_port)
-        ap = FaultyAutopilot(udp_port, autopilot)
-        made.append(ap)
-        client = daemon.client()
-        wait_for("link up with home", lambda: (s := client.state())["link"] == "up" and s["home_global"])
-        return daemon, ap, client
-
-    yield make
-    for ap in made:
-        ap.close()
-
-
 def test_a_late_ack_is_waited_for_across_a_resend(vehicle):
     _, ap, client = vehicle()
     ap.ack_delay[ARM] = 2.0  # past the first 1.5 s wait

@@ -65,6 +65,9 @@ def test_parameters_are_read_and_written_in_the_autopilots_encoding(flight):
     assert autopilot.param_int("SYS_AUTOSTART") == 4002
     bad = client.cmd("set_param SYS_AUTOSTART:1.5")
     assert bad["ret"] == -2 and "expects an integer (INT32)" in bad["msg"], bad
+    everything = client.ok("param")["param"]
+    assert everything == {"MPC_XY_VEL_MAX": 8.5, "MIS_TAKEOFF_ALT": 2.5, "SYS_AUTOSTART": 4002,
+                          "COM_RC_LOSS_T": -7}
     long_name = client.cmd("get_param ABCDEFGHIJKLMNOPQ")
     assert long_name["ret"] == -2, long_name
 

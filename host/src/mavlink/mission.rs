@@ -302,17 +302,19 @@ mod tests {
 
     #[test]
     fn progress_maps_mission_items_back_to_waypoint_ids() {
-        let mut m = Missions::default();
-        m.run = Some(Run {
-            plan: OnAutopilot {
-                ext_id: 7,
-                wp_ids: vec![4, 9],
-                first_seq: 1,
-            },
-            reached: vec![],
-            current: None,
-            status: Status::Running,
-        });
+        let mut m = Missions {
+            run: Some(Run {
+                plan: OnAutopilot {
+                    ext_id: 7,
+                    wp_ids: vec![4, 9],
+                    first_seq: 1,
+                },
+                reached: vec![],
+                current: None,
+                status: Status::Running,
+            }),
+            ..Missions::default()
+        };
         use ::mavlink::dialects::ardupilotmega::{MISSION_CURRENT_DATA, MISSION_ITEM_REACHED_DATA};
         m.observe(&MavMessage::MISSION_CURRENT(MISSION_CURRENT_DATA { seq: 2 }));
         m.observe(&MavMessage::MISSION_ITEM_REACHED(MISSION_ITEM_REACHED_DATA {

@@ -24,6 +24,7 @@
 //! | `mission` | mission upload (`MISSION_COUNT`, `MISSION_REQUEST_INT`, `MISSION_ITEM_INT`, `MISSION_ACK`) of `NAV_WAYPOINT`s, NED converted to global from `HOME_POSITION` (altitude relative to home; ArduPilot's item 0 is home) |
 //! | `mw_exec` | uploads the chosen waypoints unless they are what the autopilot holds, `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
 //! | `mw_list`, `dump_missionresult` | the missions lluavd uploaded and the run's progress |
+//! | `param` | `PARAM_REQUEST_LIST`, missing indices read one by one |
 //! | `get_param`, `set_param` | `PARAM_REQUEST_READ` / `PARAM_SET` / `PARAM_VALUE` (integers bytewise on PX4, cast on ArduPilot, or as `AUTOPILOT_VERSION` announces) |
 //! | `save_param 1`, `save_param 0`, `reset_param` | `PREFLIGHT_STORAGE` write, read back, reset to defaults |
 //! | `capture` | `IMAGE_START_CAPTURE` (one image) |
@@ -32,12 +33,28 @@
 //! | `reboot_ap` | `PREFLIGHT_REBOOT_SHUTDOWN` (autopilot) |
 //! | `mavlink_msgs` | messages received, by type |
 //! | `show_sp`, `statics`, `hud1` | the streamed setpoint; link statistics; ENU position |
-//! | everything else the vehicle owns (`tether_land`, `sleep`, `wakeup`, `autosleep_enable`, `zyhk`, `relocate_pos`, `tunnelfly`, `plan`, `ai1_mission`, LED, apron, lidar, BMS, UTG, grabber, other SIYI commands, `param`, ...) | -2 `Invalid arguments: not supported by this vehicle` |
+//! | everything else the vehicle owns (`tether_land`, `sleep`, `wakeup`, `autosleep_enable`, `zyhk`, `relocate_pos`, `tunnelfly`, `plan`, `ai1_mission`, LED, apron, lidar, BMS, UTG, grabber, other SIYI commands, ...) | -2 `Invalid arguments: not supported by this vehicle` |
 //!
 //! A refused `COMMAND_ACK` answers -1 with the `MAV_RESULT` name; no
 //! answer after the retries, or a lost link (no heartbeat for 3 s),
 //! answers -3. The companion computer's commands (files, logs, the
 //! machine) are answered by [`crate::companion`] as with the simulator.
+//!
+//! # What was tested against what
+//!
+//! `scripts/test-mavlink.sh` flies the C++ MAVSDK library acting as an
+//! autopilot (it reports a generic autopilot and speaks PX4's modes and
+//! bytewise parameters) and a pymavlink autopilot that reports PX4 or
+//! ArduPilot and misbehaves on purpose, over UDP. Neither has a flight
+//! controller behind it, so these still need a real PX4 and ArduPilot
+//! (SITL at least): PX4's acceptance of OFFBOARD after 300 ms of
+//! setpoints, `NAV_TAKEOFF` with an altitude above mean sea level,
+//! `MISSION_START` switching PX4 to AUTO.MISSION; ArduCopter's GUIDED
+//! takeoff and arming checks, its AUTO mission with the home item,
+//! SMART_RTL, and `PREFLIGHT_STORAGE`'s read-back (param 1 = 0) which
+//! ArduPilot may refuse; every camera and gimbal command against a real
+//! camera or gimbal manager; the serial and TCP transports and their
+//! reconnection.
 
 pub mod autopilot;
 mod error;
@@ -268,6 +285,10 @@ impl MavlinkVehicle {
         let gimbal = MavCmd::MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW;
         let nan = f32::NAN;
         match (cmd.id(), cmd.args()) {
+            (C::Param, _) => {
+                self.link_up(ctx)?;
+                Ok(self.pend(cmd.id(), ctx, ops::all_params(link)))
+            }
             (C::GetParam, Args::ParamName(name)) => {
                 check_param_name(name)?;
                 self.link_up(ctx)?;
@@ -519,6 +540,16 @@ impl MavlinkVehicle {
                     o.str("type", autopilot::type_name(ty))
                         .u64("index", index.into())
                         .u64("count", count.into());
+                });
+            }
+            (C::Param, Answer::Params(all)) => {
+                out.object("param", |o| {
+                    for (name, value) in &all {
+                        match value {
+                            ParamValue::Int(i) => o.i64(name, *i),
+                            ParamValue::Float(f) => o.f32(name, *f),
+                        };
+                    }
                 });
             }
             (C::SaveParam | C::ResetParam, _) => {

@@ -42,6 +42,8 @@ pub enum Answer {
         /// How many parameters the autopilot has.
         count: u16,
     },
+    /// Every parameter, by index.
+    Params(Vec<(String, ParamValue)>),
     /// A mission is on the autopilot.
     Mission {
         /// Its external id.
@@ -202,6 +204,21 @@ pub async fn get_param(link: Arc<Link>, name: String) -> Result<Answer, MavError
         index: v.param_index,
         count: v.param_count,
     })
+}
+
+/// Reads every parameter.
+pub async fn all_params(link: Arc<Link>) -> Result<Answer, MavError> {
+    let values = protocol::read_all_params(&*link, &link.timing).await?;
+    let encoding = link.shared().tel.encoding();
+    Ok(Answer::Params(
+        values
+            .iter()
+            .map(|v| {
+                let name = v.param_id.to_str().unwrap_or("").to_owned();
+                (name, encoding.decode(v.param_type, v.param_value))
+            })
+            .collect(),
+    ))
 }
 
 /// Writes a parameter: reads it first for its type, checks `text`

@@ -12,8 +12,8 @@ use std::time::Duration;
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::ardupilotmega::{
     COMMAND_LONG_DATA, MISSION_ACK_DATA, MISSION_COUNT_DATA, MISSION_ITEM_INT_DATA, MavCmd, MavMessage,
-    MavMissionResult, MavParamError, MavParamType, MavResult, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
-    PARAM_VALUE_DATA,
+    MavMissionResult, MavParamError, MavParamType, MavResult, PARAM_REQUEST_LIST_DATA,
+    PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA,
 };
 use tokio::sync::broadcast::{self, error::RecvError};
 use tokio::time::Instant;
@@ -372,6 +372,49 @@ pub async fn write_param<P: Port>(
         param_type: ty,
     });
     param_exchange(port, timing, name, request).await
+}
+
+/// Reads every parameter: `PARAM_REQUEST_LIST`, then, for the indices
+/// still missing once the stream pauses for `param`, `PARAM_REQUEST_READ`
+/// by index, up to `param_attempts` rounds. Sorted by index.
+pub async fn read_all_params<P: Port>(port: &P, timing: &Timing) -> Result<Vec<PARAM_VALUE_DATA>, MavError> {
+    let target = port.target()?;
+    let mut rx = port.subscribe();
+    let mut got: std::collections::BTreeMap<u16, PARAM_VALUE_DATA> = std::collections::BTreeMap::new();
+    let mut count: Option<u16> = None;
+    port.send(MavMessage::PARAM_REQUEST_LIST(PARAM_REQUEST_LIST_DATA {
+        target_system: target.system,
+        target_component: target.component,
+    }))
+    .await?;
+    for _ in 0..=timing.param_attempts {
+        while let Some(v) = next(&mut rx, target, Instant::now() + timing.param, |m| match m {
+            MavMessage::PARAM_VALUE(v) => Some(v.clone()),
+            _ => None,
+        })
+        .await?
+        {
+            count = Some(v.param_count);
+            got.insert(v.param_index, v);
+            if count.is_some_and(|c| got.len() >= usize::from(c)) {
+                return Ok(got.into_values().collect());
+            }
+        }
+        let Some(total) = count else { break };
+        for index in (0..total).filter(|i| !got.contains_key(i)) {
+            port.send(MavMessage::PARAM_REQUEST_READ(PARAM_REQUEST_READ_DATA {
+                param_index: i16::try_from(index).unwrap_or(i16::MAX),
+                target_system: target.system,
+                target_component: target.component,
+                param_id: "".into(),
+            }))
+            .await?;
+        }
+    }
+    Err(MavError::NoAnswer(match count {
+        Some(total) => format!("{} of {total} parameters arrived", got.len()),
+        None => "no PARAM_VALUE after PARAM_REQUEST_LIST".into(),
+    }))
 }
 
 /// A mission item for the protocol: `seq` and the target are filled in by

@@ -35,7 +35,7 @@ impl Fake {
         })
     }
 
-    fn from_autopilot(&self, msg: MavMessage) {
+    fn autopilot_says(&self, msg: MavMessage) {
         let header = MavHeader {
             system_id: AUTOPILOT.system.into(),
             component_id: AUTOPILOT.component,
@@ -58,7 +58,7 @@ impl Port for Arc<Fake> {
         };
         let answers = (self.script.lock().unwrap())(&msg, n);
         for a in answers {
-            self.from_autopilot(a);
+            self.autopilot_says(a);
         }
         Ok(())
     }
@@ -172,7 +172,7 @@ async fn in_progress_stops_the_resending_and_waits_for_the_final_answer() {
     let p = Arc::clone(&port);
     tokio::spawn(async move {
         tokio::time::sleep(Duration::from_secs(10)).await;
-        p.from_autopilot(ack(ARM, MavResult::MAV_RESULT_ACCEPTED));
+        p.autopilot_says(ack(ARM, MavResult::MAV_RESULT_ACCEPTED));
     });
     command(&port, &Timing::default(), ARM, [0.0; 7]).await.unwrap();
     assert_eq!(confirmations(&port.sent()), [0]);
@@ -353,4 +353,40 @@ async fn an_unknown_parameter_is_invalid_arguments_when_the_autopilot_says_so() 
     });
     let err = read_param(&port, &Timing::default(), "NOPE").await.unwrap_err();
     assert_eq!(err.to_string(), "Invalid arguments: unknown parameter NOPE");
+}
+
+fn indexed(name: &str, index: u16, count: u16) -> MavMessage {
+    MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+        param_value: f32::from(index),
+        param_count: count,
+        param_index: index,
+        param_id: name.into(),
+        param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+    })
+}
+
+#[tokio::test(start_paused = true)]
+async fn every_parameter_is_read_and_lost_ones_are_asked_for_by_index() {
+    let port = Fake::new(|m, _| match m {
+        // Parameter B is lost on the way.
+        MavMessage::PARAM_REQUEST_LIST(_) => vec![indexed("A", 0, 3), indexed("C", 2, 3)],
+        MavMessage::PARAM_REQUEST_READ(r) if r.param_index == 1 => vec![indexed("B", 1, 3)],
+        _ => vec![],
+    });
+    let all = read_all_params(&port, &Timing::default()).await.unwrap();
+    let names: Vec<_> = all
+        .iter()
+        .map(|v| v.param_id.to_str().unwrap().to_owned())
+        .collect();
+    assert_eq!(names, ["A", "B", "C"]);
+}
+
+#[tokio::test(start_paused = true)]
+async fn parameters_that_never_arrive_are_no_answer() {
+    let port = Fake::new(|m, _| match m {
+        MavMessage::PARAM_REQUEST_LIST(_) => vec![indexed("A", 0, 2)],
+        _ => vec![],
+    });
+    let err = read_all_params(&port, &Timing::default()).await.unwrap_err();
+    assert_eq!(err, MavError::NoAnswer("1 of 2 parameters arrived".into()));
 }
