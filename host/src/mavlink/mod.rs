@@ -2,10 +2,10 @@
 //! or UDP/TCP, the second [`VehicleBackend`] beside the simulator
 //! (`lluavd --mavlink ADDRESS`, DESIGN.md "Backends").
 //!
-//! A link task ([`link`]) reads everything the autopilot sends into a
-//! cache ([`telemetry`]) and a feed; commands that need the autopilot's
+//! A link task (module `link`) reads everything the autopilot sends into a
+//! cache (`telemetry`) and a feed; commands that need the autopilot's
 //! answer run the MAVLink protocols ([`protocol`]) as async sequences
-//! ([`ops`]) on their own tasks and answer [`Step::Pending`]: the daemon
+//! (`ops`) on their own tasks and answer [`Step::Pending`]: the daemon
 //! waits for them with the vehicle unlocked, so other sessions are served
 //! meanwhile. Timeouts and retries are the link task's (tokio time); the
 //! command logic here reads time only from [`Context::now_ms`].
@@ -530,12 +530,7 @@ impl MavlinkVehicle {
                     count,
                 },
             ) => {
-                out.object("param", |o| {
-                    match value {
-                        ParamValue::Int(i) => o.i64(&name, i),
-                        ParamValue::Float(f) => o.f32(&name, f),
-                    };
-                });
+                out.object("param", |o| write_param(o, &name, value));
                 out.object("info", |o| {
                     o.str("type", autopilot::type_name(ty))
                         .u64("index", index.into())
@@ -545,10 +540,7 @@ impl MavlinkVehicle {
             (C::Param, Answer::Params(all)) => {
                 out.object("param", |o| {
                     for (name, value) in &all {
-                        match value {
-                            ParamValue::Int(i) => o.i64(name, *i),
-                            ParamValue::Float(f) => o.f32(name, *f),
-                        };
+                        write_param(o, name, *value);
                     }
                 });
             }
@@ -575,6 +567,13 @@ impl MavlinkVehicle {
             }
         }
     }
+}
+
+fn write_param(o: &mut Fields<'_>, name: &str, value: ParamValue) {
+    match value {
+        ParamValue::Int(i) => o.i64(name, i),
+        ParamValue::Float(f) => o.f32(name, f),
+    };
 }
 
 /// PARAM_* messages carry at most 16 characters of name.
