@@ -76,6 +76,8 @@ def test_flight_commands_on_the_ground_are_refused(flight):
     _, _, client = flight
     r = client.cmd("land")
     assert (r["ret"], r["msg"]) == (-1, "Vehicle is not flying")
+    r = client.cmd("set_sp_ned 1:1:-2:0")
+    assert (r["ret"], r["msg"]) == (-1, "Vehicle is not flying")
     r = client.cmd("sleep")
     assert (r["ret"], r["msg"]) == (-2, "Invalid arguments: not supported by this vehicle")
 

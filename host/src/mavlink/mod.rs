@@ -20,9 +20,9 @@
 //! | `rtl` | `NAV_RETURN_TO_LAUNCH` |
 //! | `mrtl` | ArduPilot: `DO_SET_MODE` SMART_RTL; PX4: not supported (-2) |
 //! | `disarm` | `COMPONENT_ARM_DISARM` with the force flag (21196): motors stop, in the air too |
-//! | `set_sp_ned` | `SET_POSITION_TARGET_LOCAL_NED` (`MAV_FRAME_LOCAL_NED`, position + yaw) re-sent at 10 Hz, then `DO_SET_MODE` OFFBOARD (PX4) / GUIDED (ArduPilot) unless already in it; streaming stops when no session that set it is connected, or on `disarm`/`mw_exec` |
+//! | `set_sp_ned` | in the air only (-1 `Vehicle is not flying`): `SET_POSITION_TARGET_LOCAL_NED` (`MAV_FRAME_LOCAL_NED`, position + yaw) re-sent at 10 Hz, then `DO_SET_MODE` OFFBOARD (PX4) / GUIDED (ArduPilot) unless already in it; streaming stops when no session that set it is connected, or on `disarm`/`mw_exec` |
 //! | `mission` | mission upload (`MISSION_COUNT`, `MISSION_REQUEST_INT`, `MISSION_ITEM_INT`, `MISSION_ACK`) of `NAV_WAYPOINT`s, NED converted to global from `HOME_POSITION` (altitude relative to home; ArduPilot's item 0 is home) |
-//! | `mw_exec` | uploads the chosen waypoints unless they are what the autopilot holds, `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
+//! | `mw_exec` | in the air only: uploads the chosen waypoints unless they are what the autopilot holds, `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
 //! | `mw_list`, `dump_missionresult` | the missions lluavd uploaded and the run's progress |
 //! | `param` | `PARAM_REQUEST_LIST`, missing indices read one by one |
 //! | `get_param`, `set_param` | `PARAM_REQUEST_READ` / `PARAM_SET` / `PARAM_VALUE` (integers bytewise on PX4, cast on ArduPilot, or as `AUTOPILOT_VERSION` announces) |
@@ -338,12 +338,11 @@ impl MavlinkVehicle {
         ctx: &Context,
         out: &mut Fields<'_>,
     ) -> Result<Step, MavError> {
-        let flavour = self.link_up(ctx)?;
+        // As the simulator: setpoints move a flying vehicle (on PX4, OFFBOARD
+        // on the ground would take off towards the setpoint when armed).
+        let flavour = self.flying(ctx)?;
         let in_mode = {
             let mut shared = self.link.shared();
-            if !shared.tel.armed() {
-                return Err(MavError::not_flying());
-            }
             let stream = shared.stream.get_or_insert_with(|| Stream {
                 pose,
                 owners: Default::default(),
@@ -417,10 +416,7 @@ impl MavlinkVehicle {
                 shared.missions.on_autopilot.clone(),
             )
         };
-        let flavour = self.link_up(ctx)?;
-        if !self.link.shared().tel.armed() {
-            return Err(MavError::not_flying());
-        }
+        let flavour = self.flying(ctx)?;
         let (home, home_local) = self.home()?;
         let (items, first_seq) = mission::items(flavour, home, home_local, &selected);
         let plan = mission::OnAutopilot {

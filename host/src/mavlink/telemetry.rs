@@ -330,3 +330,117 @@ fn is_autopilot(hb: &HEARTBEAT_DATA) -> bool {
             MavType::MAV_TYPE_GCS | MavType::MAV_TYPE_ONBOARD_CONTROLLER | MavType::MAV_TYPE_GIMBAL
         )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ::mavlink::dialects::ardupilotmega::{MavState, MavVtolState};
+
+    fn header(system: u32, component: u8) -> MavHeader {
+        MavHeader {
+            system_id: system,
+            component_id: component,
+            sequence: 0,
+        }
+    }
+
+    fn heartbeat(autopilot: MavAutopilot, armed: bool, custom_mode: u32) -> MavMessage {
+        let mut base_mode = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
+        if armed {
+            base_mode |= MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
+        }
+        MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            custom_mode,
+            mavtype: MavType::MAV_TYPE_QUADROTOR,
+            autopilot,
+            base_mode,
+            system_status: MavState::MAV_STATE_ACTIVE,
+            mavlink_version: 3,
+        })
+    }
+
+    fn landed(state: MavLandedState) -> MavMessage {
+        MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
+            vtol_state: MavVtolState::MAV_VTOL_STATE_MC,
+            landed_state: state,
+        })
+    }
+
+    #[test]
+    fn the_link_is_up_for_three_seconds_after_each_heartbeat() {
+        let mut t = Telemetry::default();
+        assert!(!t.link_up(0));
+        assert!(t.observe(
+            &header(1, 1),
+            &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0),
+            1000
+        ));
+        assert!(!t.observe(
+            &header(1, 1),
+            &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0),
+            2000
+        ));
+        assert!(t.link_up(5000) && !t.link_up(5001));
+        assert_eq!(t.heartbeat_age_ms(5001), Some(3001));
+        // A heartbeat after the loss brings the link up again.
+        assert!(t.observe(
+            &header(1, 1),
+            &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0),
+            9000
+        ));
+    }
+
+    #[test]
+    fn only_the_first_autopilot_is_followed() {
+        let mut t = Telemetry::default();
+        let gcs = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            mavtype: MavType::MAV_TYPE_GCS,
+            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+            ..HEARTBEAT_DATA::DEFAULT
+        });
+        t.observe(&header(255, 190), &gcs, 0);
+        assert_eq!(t.target, None);
+        t.observe(
+            &header(3, 1),
+            &heartbeat(MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA, true, 4),
+            0,
+        );
+        t.observe(
+            &header(4, 1),
+            &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0),
+            0,
+        );
+        assert_eq!(
+            t.target,
+            Some(Target {
+                system: 3,
+                component: 1
+            })
+        );
+        assert_eq!(t.flavour, Some(Flavour::ArduPilot));
+        assert!(t.armed(), "system 4's disarmed heartbeat must not count");
+        assert_eq!(t.total_messages(), 3);
+    }
+
+    #[test]
+    fn fsm_follows_the_armed_flag_the_landed_state_and_the_mode() {
+        let mut t = Telemetry::default();
+        let px4 = MavAutopilot::MAV_AUTOPILOT_PX4;
+        let h = header(1, 1);
+        t.observe(&h, &heartbeat(px4, false, 0), 0);
+        assert_eq!(t.fsm(), "disarmed");
+        t.observe(&h, &heartbeat(px4, true, 0), 0);
+        t.observe(&h, &landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND), 0);
+        assert_eq!((t.fsm(), t.airborne()), ("armed", false));
+        t.observe(&h, &landed(MavLandedState::MAV_LANDED_STATE_TAKEOFF), 0);
+        assert_eq!(t.fsm(), "takeoff");
+        t.observe(&h, &landed(MavLandedState::MAV_LANDED_STATE_IN_AIR), 0);
+        assert_eq!((t.fsm(), t.airborne()), ("hover", true));
+        t.observe(&h, &heartbeat(px4, true, (4 << 16) | (4 << 24)), 0);
+        assert_eq!(t.fsm(), "mission");
+        t.observe(&h, &heartbeat(px4, true, (4 << 16) | (5 << 24)), 0);
+        assert_eq!(t.fsm(), "rtl");
+        t.observe(&h, &heartbeat(px4, true, (4 << 16) | (6 << 24)), 0);
+        assert_eq!(t.fsm(), "landing");
+    }
+}
