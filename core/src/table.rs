@@ -357,10 +357,8 @@ const fn sorted_by_name() -> [u8; TABLE.len()] {
     let mut order = [0u8; TABLE.len()];
     let mut i = 0;
     while i < TABLE.len() {
-        if let Some(slot) = order.split_at_mut_checked(i) {
-            if let [first, ..] = slot.1 {
-                *first = i as u8;
-            }
+        if let Some((_, [first, ..])) = order.split_at_mut_checked(i) {
+            *first = i as u8;
         }
         i += 1;
     }

@@ -182,10 +182,10 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
             }
         }
     }
-    if let Some(path) = &history {
-        if let Err(e) = editor.save_history(path) {
-            eprintln!("lluav: history not saved to {}: {e}", path.display());
-        }
+    if let Some(path) = &history
+        && let Err(e) = editor.save_history(path)
+    {
+        eprintln!("lluav: history not saved to {}: {e}", path.display());
     }
     if let Some(c) = client {
         let _ = runtime.block_on(c.close());
