@@ -28,10 +28,12 @@ use lluav_embedded::{Config, Echo, SharedServer, Slot, serve};
 /// Concurrent sessions.
 const SESSIONS: usize = 4;
 /// The firmware's buffer sizes (see the firmware's main.rs).
-type BoardSlot = Slot<4096, 1024, 4096, 2048>;
-/// Autobahn sends text messages of up to 16 MiB and expects them echoed.
+type BoardSlot = Slot<1024, 2304, 4096, 2048>;
+/// Autobahn sends text messages of up to 16 MiB and expects them echoed:
+/// the message buffer and the reply (inside the transmit buffer) must
+/// hold one.
 const ECHO_FRAME: usize = 16 * 1024 * 1024 + 1024;
-type EchoSlot = Slot<65536, 4096, ECHO_FRAME, { ECHO_FRAME + 16 }>;
+type EchoSlot = Slot<65536, { ECHO_FRAME + 16 }, ECHO_FRAME, ECHO_FRAME>;
 
 type BoardServer = SharedServer<NoopRawMutex, Board<LoggedPeripherals>, SystemClock>;
 

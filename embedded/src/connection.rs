@@ -1,44 +1,74 @@
-//! One WebSocket connection over any `embedded_io_async` stream: our
-//! handshake validation, our frame reader, embedded-websocket's `101`
-//! response and frame writer, and a [`Service`] for complete messages.
+//! One WebSocket connection over a [`Transport`]: the upgrade, then frames
+//! in and replies out, every rule of DESIGN.md's "WebSocket behaviour".
 //!
-//! Every rule of DESIGN.md's "WebSocket behaviour" lives here: binary
-//! messages, invalid UTF-8 and oversized messages are handed to the service
-//! as such (the protocol answers 1003, 1007, 1009), pings are answered with
-//! pongs, fragmented messages are reassembled in the message buffer, and a
-//! close frame is answered with a close frame. Protocol violations fail the
+//! Binary messages, invalid UTF-8 and oversized messages are handed to the
+//! service as such (the protocol answers 1003, 1007, 1009); invalid UTF-8
+//! is detected while the message arrives, and handed over at once (the
+//! rest of the message is never read). Pings are answered with pongs,
+//! fragmented messages are reassembled in the message buffer, a close
+//! frame is answered with a close frame, protocol violations fail the
 //! connection with 1002. Nothing a peer sends can make this code panic.
+//!
+//! # Where the bytes go
+//!
+//! A connection owns one buffer, the message buffer (its size is the frame
+//! limit; it first holds the upgrade request's head), and about 200 bytes
+//! of state. Everything else is the socket's:
+//!
+//! - **In**: frame headers are parsed and payloads unmasked straight out of
+//!   the socket's receive buffer ([`Transport::read_with`]) into the message
+//!   buffer, the one copy a message takes. The message cannot be handed to
+//!   the core where it lies: embassy-net shows only the contiguous part of
+//!   its receive ring (a frame that wraps around the ring's end is in two
+//!   pieces), it wakes a reader only when that ring goes from empty to
+//!   non-empty (so bytes left unconsumed to wait for the rest of a frame
+//!   could only be polled for), and a fragmented message is interleaved
+//!   with headers and control frames. The receive buffer therefore only
+//!   needs to be as large as the TCP window one wants, not the frame limit.
+//! - **Out**: the core writes its reply straight into the socket's transmit
+//!   buffer ([`Transport::write_with`]), behind room for the frame header.
+//!   Before taking the service's lock the connection waits until the
+//!   transmit buffer's free run holds a whole reply (`reply` bytes plus
+//!   header), so the core always gets exactly `reply` bytes: a reply that
+//!   does not fit is the core's `Response too large`, at the same size
+//!   whatever the socket's state, and the write under the lock never
+//!   waits. If the free run is too short (earlier replies not yet
+//!   acknowledged near the ring's end), the connection waits until the
+//!   peer has acknowledged everything, when the run is the whole buffer.
+//!   The message stays in the message buffer meanwhile, so the receive and
+//!   transmit buffers are never needed at once (embassy-net's stack can lend
+//!   only one of them at a time).
 
-use core::str::FromStr;
+use embassy_time::{Duration, Instant, with_deadline, with_timeout};
+use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY, Outcome};
 
-use embassy_time::{Duration, with_timeout};
-use embedded_io_async::{Read, Write};
-use embedded_websocket::{WebSocketCloseStatusCode, WebSocketKey, WebSocketSendMessageType, WebSocketServer};
-use lluav_core::{CloseCode, Message, Outcome};
+use crate::accept::accept_value;
+use crate::frame::{self, Opcode};
+use crate::handshake::{self, Rejection, Request};
+use crate::log::debug;
+use crate::policy::Policy;
+use crate::receive::{Event, Reader};
+use crate::service::{Handler, Service};
+use crate::transport::{self, Transport, write_all};
 
-use crate::frame::{self, Header, Opcode};
-use crate::handshake::{self, BAD_REQUEST, Rejection};
-use crate::log::{debug, warning};
-use crate::service::Service;
+/// The smallest message buffer: it must hold an upgrade request's head.
+pub const MIN_MESSAGE: usize = 256;
 
-/// The smallest receive buffer: a whole control frame must fit, and so
-/// must the `101` response embedded-websocket builds in the transmit buffer.
-pub const MIN_RAW: usize = 256;
+/// The `101` answer up to the accept value.
+const SWITCHING: &[u8] =
+    b"HTTP/1.1 101 Switching Protocols\r\nConnection: Upgrade\r\nUpgrade: websocket\r\nSec-WebSocket-Accept: ";
 
-/// Room reserved in the transmit buffer for an unmasked server frame header.
-pub const TX_HEADER: usize = 10;
-
-/// The buffers of one connection, all borrowed from the caller.
-pub struct Buffers<'b> {
-    /// Raw bytes from the peer: the request head, then frames. At least
-    /// [`MIN_RAW`] bytes; its size limits the request head.
-    pub raw: &'b mut [u8],
-    /// Reassembled messages: its size is the frame limit (larger messages close with 1009).
-    pub message: &'b mut [u8],
-    /// The service's reply; the largest reply is this size minus [`TX_HEADER`].
-    pub response: &'b mut [u8],
-    /// Outgoing frames; at least as large as `response`.
-    pub transmit: &'b mut [u8],
+/// A connection's limits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// The reply capacity the core gets (at least
+    /// [`MIN_RESPONSE_CAPACITY`]); the transport's transmit buffer must
+    /// hold this plus the frame header ([`frame::header_len`]).
+    pub reply: usize,
+    /// Close the connection when nothing arrives for this long.
+    pub idle: Option<Duration>,
+    /// How long the last close frame may take to be queued.
+    pub close: Duration,
 }
 
 /// Why a connection ended without a close handshake.
@@ -51,12 +81,13 @@ pub enum Error<E> {
     PeerClosed,
     /// Nothing arrived within the idle timeout.
     Idle,
-    /// The upgrade request was rejected (and answered with 400).
+    /// The session did not log in before its deadline (a 1008 close frame
+    /// was sent if the transmit buffer had room for it).
+    LoginTimeout,
+    /// The upgrade request was rejected (and answered with its status).
     Rejected(Rejection),
-    /// The buffers are smaller than [`Buffers`] requires.
+    /// The buffers are smaller than [`Limits`] and [`MIN_MESSAGE`] require.
     Buffers,
-    /// embedded-websocket refused to write a frame.
-    Framing,
 }
 
 impl<E> From<E> for Error<E> {
@@ -65,314 +96,189 @@ impl<E> From<E> for Error<E> {
     }
 }
 
-/// Bytes received but not yet consumed: `raw[start..end]`.
-struct Inbox<'b> {
-    raw: &'b mut [u8],
-    start: usize,
-    end: usize,
-    idle: Option<Duration>,
-}
-
-impl Inbox<'_> {
-    fn pending(&self) -> &[u8] {
-        self.raw.get(self.start..self.end).unwrap_or(&[])
-    }
-
-    /// Reads more bytes, first moving the pending ones to the front so that
-    /// a header or control frame is always contiguous.
-    async fn fill<T: Read>(&mut self, io: &mut T) -> Result<(), Error<T::Error>> {
-        if self.start > 0 {
-            self.raw.copy_within(self.start..self.end, 0);
-            self.end -= self.start;
-            self.start = 0;
-        }
-        let room = self
-            .raw
-            .get_mut(self.end..)
-            .filter(|r| !r.is_empty())
-            .ok_or(Error::Buffers)?;
-        let n = match self.idle {
-            Some(limit) => with_timeout(limit, io.read(room))
-                .await
-                .map_err(|_| Error::Idle)??,
-            None => io.read(room).await?,
-        };
-        if n == 0 {
-            return Err(Error::PeerClosed);
-        }
-        self.end += n;
-        Ok(())
-    }
-
-    /// Reads until `len` bytes are pending.
-    async fn want<T: Read>(&mut self, io: &mut T, len: usize) -> Result<(), Error<T::Error>> {
-        while self.end - self.start < len {
-            self.fill(io).await?;
-        }
-        Ok(())
-    }
-}
-
-/// The sending side: embedded-websocket's frame writer and our stream.
-struct Outbox<'b> {
-    ws: WebSocketServer,
-    transmit: &'b mut [u8],
-}
-
-impl Outbox<'_> {
-    async fn send<T: Write>(
-        &mut self,
-        io: &mut T,
-        kind: WebSocketSendMessageType,
-        payload: &[u8],
-    ) -> Result<(), Error<T::Error>> {
-        let len = if payload.len() == 0xffff {
-            // embedded-websocket 0.9.5 switches to the 64-bit length form
-            // at 65535 instead of above it; RFC 6455 requires the minimal
-            // (16-bit) form, and clients fail the connection otherwise
-            // (Autobahn case 1.1.6).
-            let opcode = match kind {
-                WebSocketSendMessageType::Text => 0x1,
-                WebSocketSendMessageType::Binary => 0x2,
-                WebSocketSendMessageType::CloseReply => 0x8,
-                WebSocketSendMessageType::Ping => 0x9,
-                WebSocketSendMessageType::Pong => 0xa,
-            };
-            let frame = self.transmit.get_mut(..4 + payload.len()).ok_or(Error::Framing)?;
-            frame[..4].copy_from_slice(&[0x80 | opcode, 126, 0xff, 0xff]);
-            frame[4..].copy_from_slice(payload);
-            frame.len()
-        } else {
-            self.ws
-                .write(kind, true, payload, self.transmit)
-                .map_err(|_| Error::Framing)?
-        };
-        self.flush(io, len).await
-    }
-
-    /// Carries out the service's answer; `Some(code)` when it closed.
-    async fn respond<T: Write>(
-        &mut self,
-        io: &mut T,
-        outcome: Outcome<'_>,
-    ) -> Result<Option<u16>, Error<T::Error>> {
-        match outcome {
-            Outcome::Reply(text) => {
-                self.send(io, WebSocketSendMessageType::Text, text.as_bytes())
-                    .await?;
-                Ok(None)
-            }
-            Outcome::ReplyThenClose(text, code) => {
-                self.send(io, WebSocketSendMessageType::Text, text.as_bytes())
-                    .await?;
-                self.close(io, code).await.map(Some)
-            }
-            Outcome::Close(code) => self.close(io, code).await.map(Some),
-            // Services wait for their backend (`Service::handle`); one that
-            // did not broke its contract.
-            Outcome::Pending(..) => self.close(io, CloseCode::InternalError).await.map(Some),
-        }
-    }
-
-    /// Sends a close frame; returns the code for the caller to report.
-    async fn close<T: Write>(&mut self, io: &mut T, code: CloseCode) -> Result<u16, Error<T::Error>> {
-        let status = WebSocketCloseStatusCode::Custom(code.code());
-        let len = self
-            .ws
-            .close(status, None, self.transmit)
-            .map_err(|_| Error::Framing)?;
-        self.flush(io, len).await?;
-        Ok(code.code())
-    }
-
-    async fn flush<T: Write>(&mut self, io: &mut T, len: usize) -> Result<(), Error<T::Error>> {
-        let bytes = self.transmit.get(..len).ok_or(Error::Framing)?;
-        io.write_all(bytes).await?;
-        io.flush().await?;
-        Ok(())
-    }
+/// What a reply written in place asks for next.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Sent {
+    Reply,
+    ReplyThenClose(CloseCode),
+    Close(CloseCode),
 }
 
 /// One WebSocket connection: [`Connection::accept`] the upgrade, then
 /// [`Connection::run`] until it closes.
 pub struct Connection<'b> {
-    inbox: Inbox<'b>,
-    outbox: Outbox<'b>,
-    message: &'b mut [u8],
-    response: &'b mut [u8],
+    reader: Reader<'b>,
+    limits: Limits,
+    /// Until when the session may stay without logging in.
+    login: Option<Instant>,
 }
 
 impl<'b> Connection<'b> {
-    /// A connection over `buffers`; `idle` closes it when nothing arrives for that long.
-    pub fn new(buffers: Buffers<'b>, idle: Option<Duration>) -> Self {
+    /// A connection gathering messages in `message` (its size is the frame limit).
+    pub fn new(message: &'b mut [u8], limits: Limits) -> Self {
         Connection {
-            inbox: Inbox {
-                raw: buffers.raw,
-                start: 0,
-                end: 0,
-                idle,
-            },
-            outbox: Outbox {
-                ws: WebSocketServer::new_server(),
-                transmit: buffers.transmit,
-            },
-            message: buffers.message,
-            response: buffers.response,
+            reader: Reader::new(message),
+            limits,
+            login: None,
         }
     }
 
-    /// Reads and validates the upgrade request and answers it: `101` on
-    /// success, `400 Bad Request` (and an error) on anything else.
-    pub async fn accept<T: Read + Write>(&mut self, io: &mut T) -> Result<(), Error<T::Error>> {
-        if self.inbox.raw.len() < MIN_RAW
-            || self.outbox.transmit.len() < MIN_RAW
-            || self.response.len() <= TX_HEADER
+    /// Closes the session with 1008 at `deadline` unless it has logged in
+    /// by then; messages and pings do not move the deadline.
+    pub fn set_login_deadline(&mut self, deadline: Option<Instant>) {
+        self.login = deadline;
+    }
+
+    /// Reads and validates the upgrade request, checks it against `policy`
+    /// and asks `admit` (e.g. a per-address limit), and answers it: `101`
+    /// on success, the rejection's status (and an error) otherwise.
+    pub async fn accept<T: Transport>(
+        &mut self,
+        io: &mut T,
+        policy: &Policy<'_>,
+        admit: impl FnOnce(&Request<'_>) -> bool,
+    ) -> Result<(), Error<T::Error>> {
+        let reply = self.limits.reply;
+        if self.reader.capacity() < MIN_MESSAGE
+            || reply < MIN_RESPONSE_CAPACITY
+            || io.send_capacity() < frame::header_len(reply) + reply
         {
             return Err(Error::Buffers);
         }
-        let head_len = loop {
-            if let Some(n) = handshake::head_end(self.inbox.pending()) {
-                break n;
+        loop {
+            let reader = &mut self.reader;
+            match io.read_with(|w| reader.head(w)).await? {
+                None => return Err(Error::Rejected(Rejection::Incomplete)),
+                Some(None) => {}
+                Some(Some(Ok(_))) => break,
+                Some(Some(Err(why))) => return reject(io, why).await,
             }
-            if self.inbox.end == self.inbox.raw.len() {
-                return reject(io, Rejection::TooLarge).await;
-            }
-            match self.inbox.fill(io).await {
-                Err(Error::PeerClosed) => return Err(Error::Rejected(Rejection::Incomplete)),
-                other => other?,
-            }
+        }
+        let checked = handshake::parse(self.reader.request()).and_then(|r| policy.check(&r).map(|()| r));
+        let request = match checked {
+            Ok(request) => request,
+            Err(why) => return reject(io, why).await,
         };
-        let key = match handshake::parse(&self.inbox.raw[..head_len]) {
-            Ok(upgrade) => WebSocketKey::from_str(upgrade.key).map_err(|()| Rejection::BadKey),
-            Err(r) => Err(r),
-        };
-        let key = match key {
-            Ok(key) => key,
-            Err(r) => return reject(io, r).await,
-        };
-        self.inbox.start = head_len;
-        // No subprotocol is selected: DESIGN.md requires none, and offered
-        // names never reach embedded-websocket.
-        let len = self
-            .outbox
-            .ws
-            .server_accept(&key, None, self.outbox.transmit)
-            .map_err(|_| Error::Framing)?;
-        self.outbox.flush(io, len).await
+        if !admit(&request) {
+            return reject(io, Rejection::TooManySessions).await;
+        }
+        let accept = accept_value(request.key);
+        self.reader.start_frames();
+        write_all(io, SWITCHING).await?;
+        write_all(io, &accept).await?;
+        write_all(io, b"\r\n\r\n").await?;
+        Ok(())
     }
 
-    /// Serves messages until the connection closes. `Ok(code)` is the close
-    /// code of the close frame we sent (our own, or the answer to the
-    /// peer's); the caller then closes the stream.
-    pub async fn run<T: Read + Write, S: Service>(
+    /// Serves messages of `session` until the connection closes; `admitted`
+    /// hears after each message whether the session may run commands.
+    /// `Ok(code)` is the close code of the close frame we sent (our own,
+    /// or the answer to the peer's); the caller then closes the stream.
+    pub async fn run<T: Transport, S: Service>(
         &mut self,
         io: &mut T,
         service: &S,
+        session: &mut S::Session,
+        mut admitted: impl FnMut(bool),
     ) -> Result<u16, Error<T::Error>> {
-        let mut session = service.open();
-        let reply_room = self.response.len().saturating_sub(TX_HEADER);
-        // The opcode of the message being reassembled, and its length so far.
-        let mut partial: Option<Opcode> = None;
-        let mut len = 0usize;
         loop {
-            let header = loop {
-                match frame::parse_header(self.inbox.pending()) {
-                    Ok(Some(h)) => break h,
-                    Ok(None) => self.inbox.fill(io).await?,
-                    Err(code) => return self.outbox.close(io, code).await,
+            let event = match self.next_event(io).await {
+                Err(Error::LoginTimeout) => {
+                    let _ = with_timeout(self.limits.close, send_close(io, CloseCode::Policy)).await;
+                    return Err(Error::LoginTimeout);
+                }
+                other => other?,
+            };
+            // A session that has not logged in cannot hold its slot by not
+            // reading what it is sent: writes end at its login deadline too.
+            let login = self.login.unwrap_or(Instant::MAX);
+            let closed = match event {
+                Event::More => None,
+                Event::Control(opcode) => with_deadline(login, self.control(io, opcode)).await.map_err(|_| Error::LoginTimeout)??,
+                Event::Fail(code) => Some(with_deadline(login, send_close(io, code)).await.map_err(|_| Error::LoginTimeout)??),
+                Event::Message | Event::InvalidText | Event::Oversized => {
+                    let (closed, now) = with_deadline(login, self.respond(io, service, session, event))
+                        .await
+                        .map_err(|_| Error::LoginTimeout)??;
+                    self.reader.finish_message();
+                    if now {
+                        self.login = None;
+                    }
+                    admitted(now);
+                    closed
                 }
             };
-            if header.opcode.is_control() {
-                if let Some(code) = self.control(io, &header).await? {
-                    return Ok(code);
-                }
-                continue;
-            }
-            match (header.opcode, partial) {
-                (Opcode::Continuation, Some(_)) => {}
-                (Opcode::Continuation, None) | (_, Some(_)) => {
-                    return self.outbox.close(io, CloseCode::ProtocolError).await;
-                }
-                (opcode, None) => {
-                    partial = Some(opcode);
-                    len = 0;
-                }
-            }
-            let room = self.message.len() - len;
-            if header.len > room as u64 {
-                let outcome = service
-                    .handle(&mut session, Message::Oversized, &mut self.response[..reply_room])
-                    .await;
-                // The frame's payload is still unread, so the connection
-                // cannot go on whatever the service answered.
-                let closed = self.outbox.respond(io, outcome).await?;
-                return match closed {
-                    Some(code) => Ok(code),
-                    None => self.outbox.close(io, CloseCode::TooBig).await,
-                };
-            }
-            self.payload(io, &header, len).await?;
-            len += header.len as usize;
-            if !header.fin {
-                continue;
-            }
-            let body = &self.message[..len];
-            let message = match partial.take() {
-                Some(Opcode::Binary) => Message::Binary(body),
-                _ => Message::Text(body),
-            };
-            let outcome = service
-                .handle(&mut session, message, &mut self.response[..reply_room])
-                .await;
-            if let Some(code) = self.outbox.respond(io, outcome).await? {
+            if let Some(code) = closed {
                 return Ok(code);
             }
         }
     }
 
-    /// Copies and unmasks a data frame's payload to `message[at..]`; the
-    /// caller checked that it fits.
-    async fn payload<T: Read>(
-        &mut self,
-        io: &mut T,
-        header: &Header,
-        at: usize,
-    ) -> Result<(), Error<T::Error>> {
-        self.inbox.start += header.header_len;
-        let total = header.len as usize;
-        let mut got = 0;
-        while got < total {
-            if self.inbox.start == self.inbox.end {
-                self.inbox.fill(io).await?;
+    /// Reads until the next event, within the idle and login deadlines.
+    async fn next_event<T: Transport>(&mut self, io: &mut T) -> Result<Event, Error<T::Error>> {
+        loop {
+            let idle = self.limits.idle.map_or(Instant::MAX, |d| Instant::now() + d);
+            let deadline = idle.min(self.login.unwrap_or(Instant::MAX));
+            let reader = &mut self.reader;
+            let got = with_deadline(deadline, io.read_with(|w| reader.feed(w)))
+                .await
+                .map_err(|_| self.expired())?;
+            match got? {
+                None => return Err(Error::PeerClosed),
+                Some(Event::More) => {}
+                Some(event) => return Ok(event),
             }
-            let take = (total - got).min(self.inbox.end - self.inbox.start);
-            let dst = &mut self.message[at + got..at + got + take];
-            dst.copy_from_slice(&self.inbox.raw[self.inbox.start..self.inbox.start + take]);
-            frame::unmask(dst, header.mask, got);
-            got += take;
-            self.inbox.start += take;
         }
-        Ok(())
     }
 
-    /// Handles a control frame; `Some(code)` when the connection is closing.
-    async fn control<T: Read + Write>(
-        &mut self,
+    fn expired<E>(&self) -> Error<E> {
+        match self.login {
+            Some(at) if at <= Instant::now() => Error::LoginTimeout,
+            _ => Error::Idle,
+        }
+    }
+
+    /// Hands the message of `event` to the service and sends its answer;
+    /// returns the close code if the connection is closing, and whether
+    /// the session is admitted now.
+    async fn respond<T: Transport, S: Service>(
+        &self,
         io: &mut T,
-        header: &Header,
-    ) -> Result<Option<u16>, Error<T::Error>> {
-        // parse_header bounds control payloads to MAX_CONTROL_PAYLOAD.
-        let len = header.len as usize;
-        self.inbox.want(io, header.header_len + len).await?;
-        let from = self.inbox.start + header.header_len;
-        self.inbox.start = from + len;
-        let payload = &mut self.inbox.raw[from..from + len];
-        frame::unmask(payload, header.mask, 0);
-        match header.opcode {
+        service: &S,
+        session: &mut S::Session,
+        event: Event,
+    ) -> Result<(Option<u16>, bool), Error<T::Error>> {
+        let reply = self.limits.reply;
+        if !transport::reserve(io, frame::header_len(reply) + reply).await? {
+            return Err(Error::Buffers);
+        }
+        let message = self.reader.message(event);
+        let mut handler = service.handler().await;
+        let sent = io
+            .write_with(|room| write_reply(room, reply, |out| handler.handle(session, message, out)))
+            .await?;
+        let now = handler.admitted(session);
+        drop(handler);
+        let code = match (sent, event) {
+            (Sent::Reply, Event::Message) => return Ok((None, now)),
+            // The rest of that message is unread: the connection cannot go
+            // on, whatever the service answered.
+            (Sent::Reply, Event::InvalidText) => CloseCode::InvalidPayload,
+            (Sent::Reply, _) => CloseCode::TooBig,
+            (Sent::ReplyThenClose(code) | Sent::Close(code), _) => code,
+        };
+        Ok((Some(send_close(io, code).await?), now))
+    }
+
+    /// Answers a control frame; `Some(code)` when the connection is closing.
+    async fn control<T: Transport>(&self, io: &mut T, opcode: Opcode) -> Result<Option<u16>, Error<T::Error>> {
+        let payload = self.reader.control();
+        match opcode {
             Opcode::Ping => {
-                self.outbox
-                    .send(io, WebSocketSendMessageType::Pong, payload)
-                    .await?;
+                let mut header = [0u8; 2];
+                frame::write_header(&mut header, Opcode::Pong, payload.len());
+                write_all(io, &header).await?;
+                write_all(io, payload).await?;
                 Ok(None)
             }
             Opcode::Close => {
@@ -386,13 +292,7 @@ impl<'b> Connection<'b> {
                     },
                 };
                 debug!("peer closed with {}", code);
-                let status = WebSocketCloseStatusCode::Custom(code);
-                let n = self
-                    .outbox
-                    .ws
-                    .close(status, None, self.outbox.transmit)
-                    .map_err(|_| Error::Framing)?;
-                self.outbox.flush(io, n).await?;
+                write_all(io, &close_frame(code)).await?;
                 Ok(Some(code))
             }
             _ => Ok(None),
@@ -400,9 +300,55 @@ impl<'b> Connection<'b> {
     }
 }
 
-async fn reject<T: Write>(io: &mut T, why: Rejection) -> Result<(), Error<T::Error>> {
-    warning!("upgrade rejected: {:?}", why);
-    io.write_all(BAD_REQUEST).await?;
+/// Runs `handle` on the reply room of `room` and frames its reply in
+/// place; returns the bytes to send and what comes next.
+fn write_reply(
+    room: &mut [u8],
+    capacity: usize,
+    handle: impl for<'o> FnOnce(&'o mut [u8]) -> Outcome<'o>,
+) -> (usize, Sent) {
+    let reserve = frame::header_len(capacity);
+    let Some(window) = room.get_mut(..reserve + capacity) else {
+        return (0, Sent::Close(CloseCode::InternalError));
+    };
+    let Some(body) = window.get_mut(reserve..) else {
+        return (0, Sent::Close(CloseCode::InternalError));
+    };
+    let start = body.as_ptr();
+    let (len, sent) = match handle(body) {
+        Outcome::Close(code) => return (0, Sent::Close(code)),
+        // A reply must be written where the handler was asked to write it.
+        Outcome::Reply(r) if core::ptr::eq(r.as_ptr(), start) => (r.len(), Sent::Reply),
+        Outcome::ReplyThenClose(r, code) if core::ptr::eq(r.as_ptr(), start) => (r.len(), Sent::ReplyThenClose(code)),
+        _ => return (0, Sent::Close(CloseCode::InternalError)),
+    };
+    let header = frame::header_len(len);
+    if len > capacity {
+        return (0, Sent::Close(CloseCode::InternalError));
+    }
+    // The header was given room for the longest reply; a shorter one
+    // moves the reply up to meet it.
+    window.copy_within(reserve..reserve + len, header);
+    match frame::write_header(window, Opcode::Text, len) {
+        Some(_) => (header + len, sent),
+        None => (0, Sent::Close(CloseCode::InternalError)),
+    }
+}
+
+/// A close frame carrying `code` and no reason.
+fn close_frame(code: u16) -> [u8; 4] {
+    let [hi, lo] = code.to_be_bytes();
+    [0x88, 2, hi, lo]
+}
+
+/// Sends a close frame; returns the code for the caller to report.
+async fn send_close<T: Transport>(io: &mut T, code: CloseCode) -> Result<u16, Error<T::Error>> {
+    write_all(io, &close_frame(code.code())).await?;
+    Ok(code.code())
+}
+
+async fn reject<T: Transport>(io: &mut T, why: Rejection) -> Result<(), Error<T::Error>> {
+    write_all(io, why.answer()).await?;
     io.flush().await?;
     Err(Error::Rejected(why))
 }

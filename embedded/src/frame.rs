@@ -1,16 +1,12 @@
 //! Incoming frame headers, validated against RFC 6455 before any payload
 //! is read, and payload unmasking.
 //!
-//! This is the receive half of our framing layer. embedded-websocket 0.9.5's
-//! `read` is not used for it because it accepts frames the RFC requires a
-//! server to fail (reserved bits set, unmasked client frames, fragmented or
-//! over-long control frames), truncates 64-bit lengths to `usize` on 32-bit
-//! targets, and rejects the last fragment of a fragmented message when that
-//! fragment arrives in more than one read (its continuation state forgets
-//! the message's opcode before checking it). The send half (the `101`
-//! response and outgoing frames) is embedded-websocket's.
-//!
-//! Parsing never panics and never reads past the slice it is given.
+//! Parsing checks every rule a server must enforce (reserved bits, masked
+//! client frames, control frames unfragmented and at most 125 bytes, 64-bit
+//! lengths with the top bit clear) before any payload is read, never panics
+//! and never reads past the slice it is given. Server frames are written by
+//! [`write_header`]: unmasked, with the minimal length form RFC 6455
+//! requires.
 
 use lluav_core::CloseCode;
 
@@ -122,9 +118,48 @@ pub fn parse_header(buf: &[u8]) -> Result<Option<Header>, CloseCode> {
 /// Unmasks `payload` in place; `offset` is the position of its first byte
 /// within the frame's payload (frames arrive in pieces).
 pub fn unmask(payload: &mut [u8], mask: [u8; 4], offset: usize) {
-    for (i, b) in payload.iter_mut().enumerate() {
-        *b ^= mask[(offset + i) % 4];
+    for (b, m) in payload.iter_mut().zip(mask.iter().cycle().skip(offset % 4)) {
+        *b ^= m;
     }
+}
+
+/// The length of a server frame header for a `len`-byte payload.
+pub const fn header_len(len: usize) -> usize {
+    match len {
+        0..=125 => 2,
+        126..=0xffff => 4,
+        _ => 10,
+    }
+}
+
+/// Writes a final (FIN) unmasked frame header for a `len`-byte payload at
+/// the start of `out`; returns its length, or `None` if `out` is shorter.
+pub fn write_header(out: &mut [u8], opcode: Opcode, len: usize) -> Option<usize> {
+    let code = match opcode {
+        Opcode::Continuation => 0x0,
+        Opcode::Text => 0x1,
+        Opcode::Binary => 0x2,
+        Opcode::Close => 0x8,
+        Opcode::Ping => 0x9,
+        Opcode::Pong => 0xa,
+    };
+    let n = header_len(len);
+    let head = out.get_mut(..n)?;
+    let (first, rest) = head.split_first_mut()?;
+    *first = 0x80 | code;
+    let (second, extended) = rest.split_first_mut()?;
+    match n {
+        2 => *second = len as u8,
+        4 => {
+            *second = 126;
+            extended.copy_from_slice(&(len as u16).to_be_bytes());
+        }
+        _ => {
+            *second = 127;
+            extended.copy_from_slice(&(len as u64).to_be_bytes());
+        }
+    }
+    Some(n)
 }
 
 #[cfg(test)]
@@ -166,6 +201,21 @@ mod tests {
         for frame in bad {
             assert_eq!(parse_header(frame), Err(CloseCode::ProtocolError), "{frame:?}");
         }
+    }
+
+    #[test]
+    fn writes_the_minimal_length_form() {
+        let mut out = [0u8; 10];
+        assert_eq!(write_header(&mut out, Opcode::Text, 125), Some(2));
+        assert_eq!(out[..2], [0x81, 125]);
+        assert_eq!(write_header(&mut out, Opcode::Pong, 126), Some(4));
+        assert_eq!(out[..4], [0x8a, 126, 0, 126]);
+        // 65535 still fits the 16-bit form (Autobahn case 1.1.6).
+        assert_eq!(write_header(&mut out, Opcode::Text, 0xffff), Some(4));
+        assert_eq!(out[..4], [0x81, 126, 0xff, 0xff]);
+        assert_eq!(write_header(&mut out, Opcode::Text, 0x10000), Some(10));
+        assert_eq!(out, [0x81, 127, 0, 0, 0, 0, 0, 1, 0, 0]);
+        assert_eq!(write_header(&mut out[..3], Opcode::Text, 126), None);
     }
 
     #[test]

@@ -1,13 +1,15 @@
-//! The HTTP upgrade request, parsed and validated by us before anything
-//! reaches embedded-websocket.
+//! The HTTP upgrade request, parsed and validated before any answer.
 //!
-//! embedded-websocket 0.9.5 stores `Sec-WebSocket-Key` and every
-//! `Sec-WebSocket-Protocol` value in a 24-byte string with an `unwrap`, so a
-//! longer value from any client would halt the board. This module never
-//! panics on input: it accepts a request only when the key is exactly a
-//! base64-encoded 16-byte nonce (24 characters) and every offered protocol
-//! fits 24 bytes, and rejects everything else with a typed error that the
-//! adapter answers with `400 Bad Request`.
+//! Parsing never panics on input and never allocates: a request is
+//! accepted only when it is `GET <path> HTTP/1.1` with printable ASCII
+//! headers of at most [`MAX_HEADER_VALUE`] bytes, one `Host`, at most one
+//! `Origin`, `Upgrade: websocket`, `Connection: upgrade`, version 13 and a
+//! `Sec-WebSocket-Key` that is exactly a base64-encoded 16-byte nonce.
+//! Offered subprotocols are read as an HTTP list of names of at most
+//! [`MAX_PROTOCOL_LEN`] bytes; none is selected (DESIGN.md requires none).
+//! Whether the `Host` and `Origin` are acceptable is [`crate::policy`]'s
+//! question. Everything rejected is answered with the status of its
+//! [`Rejection`] and the connection is closed.
 
 /// The longest header value we accept; longer ones are rejected, not cut.
 pub const MAX_HEADER_VALUE: usize = 256;
@@ -15,25 +17,40 @@ pub const MAX_HEADER_VALUE: usize = 256;
 /// The length of a valid `Sec-WebSocket-Key`: 16 bytes in base64.
 pub const KEY_LEN: usize = 24;
 
-/// The longest subprotocol name we accept (the capacity of
-/// `embedded_websocket::WebSocketSubProtocol`).
+/// The longest subprotocol name we accept.
 pub const MAX_PROTOCOL_LEN: usize = 24;
 
-/// The answer to every rejected upgrade request.
+/// The longest request head we read (its bytes are held in the
+/// connection's message buffer until answered).
+pub const MAX_REQUEST_HEAD: usize = 1024;
+
+/// The answer to a malformed upgrade request.
 pub const BAD_REQUEST: &[u8] = b"HTTP/1.1 400 Bad Request\r\nConnection: close\r\nContent-Length: 0\r\n\r\n";
 
-/// A valid WebSocket upgrade request: what the response needs from it.
+/// The answer to a request whose `Host` or `Origin` the policy refuses.
+pub const FORBIDDEN: &[u8] = b"HTTP/1.1 403 Forbidden\r\nConnection: close\r\nContent-Length: 0\r\n\r\n";
+
+/// The answer to a request from an address that holds all the sessions
+/// one address may hold.
+pub const TOO_MANY_REQUESTS: &[u8] =
+    b"HTTP/1.1 429 Too Many Requests\r\nConnection: close\r\nContent-Length: 0\r\n\r\n";
+
+/// A valid WebSocket upgrade request: what the answer and the policy need.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Upgrade<'a> {
+pub struct Request<'a> {
     /// The `Sec-WebSocket-Key`, validated: 24 characters of base64 encoding 16 bytes.
-    pub key: &'a str,
+    pub key: &'a [u8; KEY_LEN],
+    /// The `Host` header's value (`name` or `name:port`).
+    pub host: &'a str,
+    /// The `Origin` header's value, if any (browsers send one).
+    pub origin: Option<&'a str>,
 }
 
 /// Why an upgrade request was rejected.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Rejection {
-    /// The request head did not end within the receive buffer.
+    /// The request head did not end within [`MAX_REQUEST_HEAD`] bytes.
     TooLarge,
     /// The peer closed the connection before the head was complete.
     Incomplete,
@@ -45,8 +62,10 @@ pub enum Rejection {
     BadHeader,
     /// A header value longer than [`MAX_HEADER_VALUE`].
     HeaderTooLong,
-    /// No `Host` header.
+    /// No `Host` header, or more than one.
     MissingHost,
+    /// More than one `Origin` header.
+    BadOrigin,
     /// `Upgrade: websocket` or `Connection: upgrade` missing.
     NotUpgrade,
     /// `Sec-WebSocket-Version` missing or not 13.
@@ -55,6 +74,24 @@ pub enum Rejection {
     BadKey,
     /// A `Sec-WebSocket-Protocol` entry empty or longer than [`MAX_PROTOCOL_LEN`].
     BadProtocol,
+    /// The `Host` names neither this adapter's address nor an allowed name
+    /// (DNS rebinding).
+    ForeignHost,
+    /// The `Origin` is a page of another site (cross-site WebSocket hijacking).
+    ForeignOrigin,
+    /// The peer's address already holds as many sessions as one address may.
+    TooManySessions,
+}
+
+impl Rejection {
+    /// The HTTP answer to this rejection.
+    pub fn answer(self) -> &'static [u8] {
+        match self {
+            Rejection::ForeignHost | Rejection::ForeignOrigin => FORBIDDEN,
+            Rejection::TooManySessions => TOO_MANY_REQUESTS,
+            _ => BAD_REQUEST,
+        }
+    }
 }
 
 /// Where the request head ends in `buf` (the index after its blank line),
@@ -63,70 +100,109 @@ pub fn head_end(buf: &[u8]) -> Option<usize> {
     buf.windows(4).position(|w| w == b"\r\n\r\n").map(|i| i + 4)
 }
 
+/// The headers a WebSocket upgrade needs, as they are read.
+#[derive(Default)]
+struct Seen<'a> {
+    host: Option<&'a str>,
+    hosts: usize,
+    origin: Option<&'a str>,
+    origins: usize,
+    upgrade: bool,
+    connection: bool,
+    version: bool,
+    key: Option<&'a [u8; KEY_LEN]>,
+}
+
 /// Validates a complete request head (up to and including its blank line).
-pub fn parse(head: &[u8]) -> Result<Upgrade<'_>, Rejection> {
-    let text = core::str::from_utf8(head).map_err(|_| Rejection::NotAscii)?;
-    if !text
-        .bytes()
-        .all(|b| b == b'\r' || b == b'\n' || b == b'\t' || (b' '..=b'~').contains(&b))
+pub fn parse(head: &[u8]) -> Result<Request<'_>, Rejection> {
+    if !head
+        .iter()
+        .all(|&b| b == b'\r' || b == b'\n' || b == b'\t' || (b' '..=b'~').contains(&b))
     {
         return Err(Rejection::NotAscii);
     }
-    let body = text.strip_suffix("\r\n\r\n").ok_or(Rejection::NotAscii)?;
-    let mut lines = body.split("\r\n");
-    request_line(lines.next().unwrap_or(""))?;
-
-    let mut host = false;
-    let mut upgrade = false;
-    let mut connection = false;
-    let mut version = false;
-    let mut key = None;
-    for line in lines {
-        if line.contains('\n') || line.contains('\r') {
+    let body = head.strip_suffix(b"\r\n\r\n").ok_or(Rejection::NotAscii)?;
+    let mut lines = body.split(|&b| b == b'\n').peekable();
+    let mut first = true;
+    let mut seen = Seen::default();
+    while let Some(raw) = lines.next() {
+        // Every line but the last one of `body` ended in CRLF; no CR may
+        // appear anywhere else.
+        let line = match lines.peek() {
+            Some(_) => raw.strip_suffix(b"\r").ok_or(Rejection::NotAscii)?,
+            None => raw,
+        };
+        if line.contains(&b'\r') {
             return Err(Rejection::NotAscii);
         }
+        let line = core::str::from_utf8(line).map_err(|_| Rejection::NotAscii)?;
+        if first {
+            request_line(line)?;
+            first = false;
+        } else {
+            seen.header(line)?;
+        }
+    }
+    seen.finish()
+}
+
+impl<'a> Seen<'a> {
+    fn header(&mut self, line: &'a str) -> Result<(), Rejection> {
         let (name, value) = header(line)?;
-        if name.eq_ignore_ascii_case("host") {
-            host = true;
-        } else if name.eq_ignore_ascii_case("upgrade") {
-            upgrade |= has_token(value, "websocket");
-        } else if name.eq_ignore_ascii_case("connection") {
-            connection |= has_token(value, "upgrade");
-        } else if name.eq_ignore_ascii_case("sec-websocket-version") {
+        let is = |n: &str| name.eq_ignore_ascii_case(n);
+        if is("host") {
+            self.host = Some(value);
+            self.hosts += 1;
+        } else if is("origin") {
+            self.origin = Some(value);
+            self.origins += 1;
+        } else if is("upgrade") {
+            self.upgrade |= has_token(value, "websocket");
+        } else if is("connection") {
+            self.connection |= has_token(value, "upgrade");
+        } else if is("sec-websocket-version") {
             if value != "13" {
                 return Err(Rejection::BadVersion);
             }
-            version = true;
-        } else if name.eq_ignore_ascii_case("sec-websocket-key") {
-            if key.is_some() || !valid_key(value) {
+            self.version = true;
+        } else if is("sec-websocket-key") {
+            let key = value.as_bytes().try_into().map_err(|_| Rejection::BadKey)?;
+            if self.key.is_some() || !valid_key(key) {
                 return Err(Rejection::BadKey);
             }
-            key = Some(value);
-        } else if name.eq_ignore_ascii_case("sec-websocket-protocol") {
-            // Entries as HTTP lists are read (comma, optional spaces), and
-            // also as embedded-websocket's reader cuts them (at ", " only):
-            // "a…a,b…b" is two short entries to the first reading but one
-            // long one to the second, which would hit its 24-byte unwrap.
-            let ok = value
+            self.key = Some(key);
+        } else if is("sec-websocket-protocol")
+            && !value
                 .split(',')
                 .map(|p| p.trim_matches([' ', '\t']))
                 .all(|p| !p.is_empty() && p.len() <= MAX_PROTOCOL_LEN)
-                && value.split(", ").all(|p| p.len() <= MAX_PROTOCOL_LEN);
-            if !ok {
-                return Err(Rejection::BadProtocol);
-            }
+        {
+            return Err(Rejection::BadProtocol);
         }
+        Ok(())
     }
-    if !host {
-        return Err(Rejection::MissingHost);
+
+    fn finish(self) -> Result<Request<'a>, Rejection> {
+        let host = match (self.host, self.hosts) {
+            (Some(host), 1) if !host.is_empty() => host,
+            _ => return Err(Rejection::MissingHost),
+        };
+        if self.origins > 1 {
+            return Err(Rejection::BadOrigin);
+        }
+        if !(self.upgrade && self.connection) {
+            return Err(Rejection::NotUpgrade);
+        }
+        if !self.version {
+            return Err(Rejection::BadVersion);
+        }
+        let key = self.key.ok_or(Rejection::BadKey)?;
+        Ok(Request {
+            key,
+            host,
+            origin: self.origin,
+        })
     }
-    if !(upgrade && connection) {
-        return Err(Rejection::NotUpgrade);
-    }
-    if !version {
-        return Err(Rejection::BadVersion);
-    }
-    key.map(|key| Upgrade { key }).ok_or(Rejection::BadKey)
 }
 
 fn request_line(line: &str) -> Result<(), Rejection> {
@@ -158,8 +234,7 @@ fn has_token(value: &str, token: &str) -> bool {
 
 /// 22 base64 characters and `==`, the last character carrying only the
 /// two bits that complete the 16th byte.
-fn valid_key(key: &str) -> bool {
-    let b = key.as_bytes();
+fn valid_key(key: &[u8; KEY_LEN]) -> bool {
     let sextet = |c: u8| match c {
         b'A'..=b'Z' => Some(c - b'A'),
         b'a'..=b'z' => Some(c - b'a' + 26),
@@ -168,10 +243,10 @@ fn valid_key(key: &str) -> bool {
         b'/' => Some(63),
         _ => None,
     };
-    b.len() == KEY_LEN
-        && b[22..] == *b"=="
-        && b[..22].iter().all(|&c| sextet(c).is_some())
-        && sextet(b[21]).is_some_and(|s| s & 0x0f == 0)
+    let (digits, pad) = key.split_at(22);
+    pad == b"=="
+        && digits.iter().all(|&c| sextet(c).is_some())
+        && sextet(key[21]).is_some_and(|s| s & 0x0f == 0)
 }
 
 #[cfg(test)]
@@ -190,8 +265,10 @@ mod tests {
     fn accepts_the_rfc_example_key() {
         assert_eq!(
             parse(GOOD.as_bytes()),
-            Ok(Upgrade {
-                key: "dGhlIHNhbXBsZSBub25jZQ=="
+            Ok(Request {
+                key: b"dGhlIHNhbXBsZSBub25jZQ==",
+                host: "x",
+                origin: None,
             })
         );
     }
@@ -223,9 +300,26 @@ mod tests {
     }
 
     #[test]
-    fn rejects_protocols_that_embedded_websocket_would_read_as_one_long_entry() {
-        let req = with("Sec-WebSocket-Protocol: aaaaaaaaaaaaaaaaaaaa,bbbbbbbbbb");
-        assert_eq!(parse(req.as_bytes()), Err(Rejection::BadProtocol));
+    fn reads_the_origin_and_refuses_two() {
+        let req = with("Origin: http://x");
+        assert_eq!(parse(req.as_bytes()).map(|r| r.origin), Ok(Some("http://x")));
+        let req = with("Origin: http://x\r\nOrigin: http://y");
+        assert_eq!(parse(req.as_bytes()), Err(Rejection::BadOrigin));
+    }
+
+    #[test]
+    fn refuses_two_hosts_and_an_empty_one() {
+        assert_eq!(parse(with("Host: y").as_bytes()), Err(Rejection::MissingHost));
+        let req = GOOD.replace("Host: x", "Host: ");
+        assert_eq!(parse(req.as_bytes()), Err(Rejection::MissingHost));
+    }
+
+    #[test]
+    fn refuses_a_bare_cr_or_lf_inside_the_head() {
+        let req = GOOD.replace("Upgrade: websocket\r\n", "Upgrade: websocket\n");
+        assert_eq!(parse(req.as_bytes()), Err(Rejection::NotAscii));
+        let req = GOOD.replace("Host: x", "Host: x\ry");
+        assert_eq!(parse(req.as_bytes()), Err(Rejection::NotAscii));
     }
 
     #[test]

@@ -1,44 +1,64 @@
 //! What a connection hands its complete messages to.
 
+use core::net::IpAddr;
+
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::{Mutex, MutexGuard};
-use embassy_time::{Duration, Timer};
-use lluav_core::{Backend, Clock, CloseCode, Message, Outcome, Server};
-
-/// How often a command the backend left pending is asked again.
-const PENDING_POLL: Duration = Duration::from_millis(5);
+use lluav_core::{Backend, Clock, CloseCode, Message, Outcome, Server, Session};
 
 /// Handles the complete messages of every connection.
 ///
 /// The adapter owns sockets and framing; a service owns what a message
 /// means. [`SharedServer`] is the protocol; [`Echo`] is the conformance
 /// configuration (Autobahn|Testsuite) on the very same connection code.
+///
+/// A reply is written by the [`Handler`] straight into the connection's
+/// transmit buffer, so the connection first waits (with nothing locked)
+/// until that buffer has room for a whole reply, then takes the handler,
+/// which holds it only for the synchronous [`Handler::handle`] call.
 // Futures of embassy tasks never cross threads, so the `Send` bound that
 // `async_fn_in_trait` warns about would only exclude single-core executors.
 #[allow(async_fn_in_trait)]
 pub trait Service {
     /// Per-connection state.
     type Session;
+    /// Exclusive access for handling one message (e.g. a mutex guard).
+    type Handler<'a>: Handler<Session = Self::Session>
+    where
+        Self: 'a;
 
-    /// The state of a newly accepted connection.
-    fn open(&self) -> Self::Session;
+    /// The state of a connection from `peer` whose upgrade was accepted.
+    async fn open(&self, peer: Option<IpAddr>) -> Self::Session;
 
-    /// Answers one complete message, writing any reply into `out`; never
-    /// [`Outcome::Pending`].
-    async fn handle<'o>(
-        &self,
-        session: &mut Self::Session,
-        message: Message<'_>,
-        out: &'o mut [u8],
-    ) -> Outcome<'o>;
+    /// Waits for exclusive access to handle a message.
+    async fn handler(&self) -> Self::Handler<'_>;
+
+    /// The connection of `session` has ended.
+    async fn close(&self, session: Self::Session);
+}
+
+/// Handles one message at a time, with exclusive access.
+pub trait Handler {
+    /// Per-connection state (the service's).
+    type Session;
+
+    /// Answers one complete message, writing any reply at the start of
+    /// `out` (the reply must be a prefix of `out`).
+    fn handle<'o>(&mut self, session: &mut Self::Session, message: Message<'_>, out: &'o mut [u8]) -> Outcome<'o>;
+
+    /// Whether `session` may run commands now: it has logged in, or no
+    /// password is required. A connection whose session is not admitted
+    /// is the first to give up its slot, and is closed at the login
+    /// deadline.
+    fn admitted(&self, session: &Self::Session) -> bool;
 }
 
 /// The protocol server for one vehicle, shared by every connection.
 ///
-/// The lock is held only for the synchronous [`Server::handle`] call, never
-/// across network I/O, so a slow client never delays the others. A command
-/// the backend leaves pending is asked again every [`PENDING_POLL`] with the
-/// lock released, so other sessions go on meanwhile.
+/// The lock is held only while one message is handled (a synchronous
+/// [`Server::handle`] call writing into a transmit buffer that already has
+/// room), never while waiting for the network, so a slow client never
+/// delays the others.
 pub struct SharedServer<M: RawMutex, B, C> {
     server: Mutex<M, Server<B, C>>,
 }
@@ -57,26 +77,37 @@ impl<M: RawMutex, B: Backend, C: Clock> SharedServer<M, B, C> {
     }
 }
 
+/// The protocol server, locked for one message.
+pub struct Locked<'a, M: RawMutex, B, C>(MutexGuard<'a, M, Server<B, C>>);
+
+impl<M: RawMutex, B: Backend, C: Clock> Handler for Locked<'_, M, B, C> {
+    type Session = Session;
+
+    fn handle<'o>(&mut self, session: &mut Session, message: Message<'_>, out: &'o mut [u8]) -> Outcome<'o> {
+        self.0.handle(session, message, out)
+    }
+
+    fn admitted(&self, session: &Session) -> bool {
+        session.logged_in() || !self.0.auth().password_required()
+    }
+}
+
 impl<M: RawMutex, B: Backend, C: Clock> Service for SharedServer<M, B, C> {
-    type Session = lluav_core::Session;
+    type Session = Session;
+    type Handler<'a>
+        = Locked<'a, M, B, C>
+    where
+        Self: 'a;
 
-    fn open(&self) -> Self::Session {
-        lluav_core::Session::new()
+    async fn open(&self, _peer: Option<IpAddr>) -> Session {
+        Session::new()
     }
 
-    async fn handle<'o>(
-        &self,
-        session: &mut Self::Session,
-        message: Message<'_>,
-        out: &'o mut [u8],
-    ) -> Outcome<'o> {
-        let mut outcome = self.server.lock().await.handle(session, message, out);
-        while let Outcome::Pending(_, buf) = outcome {
-            Timer::after(PENDING_POLL).await;
-            outcome = self.server.lock().await.resume(session, buf);
-        }
-        outcome
+    async fn handler(&self) -> Locked<'_, M, B, C> {
+        Locked(self.server.lock().await)
     }
+
+    async fn close(&self, _session: Session) {}
 }
 
 /// Echoes every text message back; the close policy is the protocol's
@@ -84,23 +115,43 @@ impl<M: RawMutex, B: Backend, C: Clock> Service for SharedServer<M, B, C> {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Echo;
 
-impl Service for Echo {
+impl Handler for Echo {
     type Session = ();
 
-    fn open(&self) -> Self::Session {}
-
-    async fn handle<'o>(&self, _: &mut (), message: Message<'_>, out: &'o mut [u8]) -> Outcome<'o> {
-        let text = match message.text() {
-            Ok(text) => text,
-            Err(code) => return Outcome::Close(code),
-        };
-        let Some(dst) = out.get_mut(..text.len()) else {
-            return Outcome::Close(CloseCode::TooBig);
-        };
-        dst.copy_from_slice(text.as_bytes());
-        match core::str::from_utf8(dst) {
-            Ok(echo) => Outcome::Reply(echo),
-            Err(_) => Outcome::Close(CloseCode::InternalError),
+    fn handle<'o>(&mut self, _: &mut (), message: Message<'_>, out: &'o mut [u8]) -> Outcome<'o> {
+        match message {
+            Message::Text(bytes) => {
+                let Ok(text) = core::str::from_utf8(bytes) else {
+                    return Outcome::Close(CloseCode::InvalidPayload);
+                };
+                let Some(dst) = out.get_mut(..text.len()) else {
+                    return Outcome::Close(CloseCode::TooBig);
+                };
+                dst.copy_from_slice(text.as_bytes());
+                match core::str::from_utf8(dst) {
+                    Ok(echo) => Outcome::Reply(echo),
+                    Err(_) => Outcome::Close(CloseCode::InternalError),
+                }
+            }
+            Message::Binary(_) => Outcome::Close(CloseCode::Unsupported),
+            Message::Oversized => Outcome::Close(CloseCode::TooBig),
         }
     }
+
+    fn admitted(&self, _: &()) -> bool {
+        true
+    }
+}
+
+impl Service for Echo {
+    type Session = ();
+    type Handler<'a> = Echo;
+
+    async fn open(&self, _peer: Option<IpAddr>) {}
+
+    async fn handler(&self) -> Echo {
+        Echo
+    }
+
+    async fn close(&self, _session: ()) {}
 }

@@ -3,11 +3,14 @@
 
 mod support;
 
-use embassy_futures::join::join_array;
 use embassy_net::tcp::ConnectError;
 use embassy_time::Timer;
+use lluav_embedded::Config;
 use serde_json::json;
-use support::{Client, KEY, PASSWORD, SESSIONS, op, upgrade_request, with_server, with_service};
+use support::{
+    Client, KEY, PASSWORD, SESSIONS, join_all, op, protocol_server, upgrade_request, with_server, with_service,
+    with_world,
+};
 
 #[test]
 fn login_gates_every_command_then_serves_it() {
@@ -216,20 +219,27 @@ fn request_head_larger_than_the_buffer_gets_400() {
 
 #[test]
 fn concurrent_sessions_keep_their_own_login() {
-    with_server(|stack| async move {
-        let sessions: [_; SESSIONS] = core::array::from_fn(|i| async move {
+    with_world(protocol_server(), Config::new(), |clients| async move {
+        // One session per address; the last one never logs in. (A session
+        // that has not logged in may be evicted when a newcomer takes the
+        // last free slot, so the logged-in ones come first.)
+        let mut sessions = Vec::new();
+        for (i, stack) in clients.into_iter().enumerate() {
             let mut c = Client::connect(stack).await;
-            if i % 2 == 0 {
+            if i + 1 < SESSIONS {
                 assert_eq!(c.call(&format!("login {PASSWORD}")).await["ret"], 0);
             }
+            sessions.push(c);
+        }
+        let calls = sessions.iter_mut().enumerate().map(|(i, c)| async move {
             for _ in 0..5 {
                 let r = c.call("state").await;
-                assert_eq!(r["ret"], if i % 2 == 0 { 0 } else { -1 }, "session {i}: {r}");
+                let expected = if i + 1 < SESSIONS { 0 } else { -1 };
+                assert_eq!(r["ret"], expected, "session {i}: {r}");
             }
-            c
         });
-        let clients = join_array(sessions).await;
-        for c in clients {
+        join_all(calls).await;
+        for c in sessions {
             assert_eq!(c.close(1000).await, 1000);
         }
     });
@@ -237,20 +247,24 @@ fn concurrent_sessions_keep_their_own_login() {
 
 #[test]
 fn a_connection_beyond_the_slots_is_refused_until_one_frees_up() {
-    with_server(|stack| async move {
+    with_world(protocol_server(), Config::new(), |clients| async move {
         let mut busy = Vec::new();
-        for _ in 0..SESSIONS {
-            busy.push(Client::connect(stack).await);
+        for stack in clients {
+            let mut c = Client::connect(stack).await;
+            assert_eq!(c.call(&format!("login {PASSWORD}")).await["ret"], 0);
+            busy.push(c);
         }
+        // Every slot holds a logged-in session: nothing listens, nothing
+        // may be evicted.
         assert_eq!(
-            Client::try_tcp(stack).await.err(),
+            Client::try_tcp(clients[0]).await.err(),
             Some(ConnectError::ConnectionReset)
         );
         assert_eq!(busy.remove(0).close(1000).await, 1000);
         // The freed slot listens again once its socket is torn down: poll for it.
         let mut late = None;
         for _ in 0..100 {
-            if let Ok(c) = Client::try_tcp(stack).await {
+            if let Ok(c) = Client::try_tcp(clients[0]).await {
                 late = Some(c);
                 break;
             }

@@ -1,80 +1,83 @@
-//! The connection code over an in-memory stream that delivers the peer's
-//! bytes in pieces of a chosen size, so frame boundaries fall anywhere.
+//! The connection code over an in-memory transport that delivers the
+//! peer's bytes in pieces of a chosen size into a receive ring of a chosen
+//! size, so frame boundaries and the ring's wrap-around fall anywhere.
 
 mod support;
 
-use embedded_io_async::{ErrorKind, ErrorType, Read, Write};
-use lluav_embedded::{Buffers, Connection, Echo, Error};
+use std::net::{IpAddr, Ipv4Addr};
+
+use embassy_time::Duration;
+use lluav_embedded::policy::Policy;
+use lluav_embedded::testing::{Pipe, PipeError};
+use lluav_embedded::{Connection, Echo, Error, Limits};
 use support::{KEY, block_on, masked, op, parse_server_frame, upgrade_request};
 
-/// Gives out `input` at most `piece` bytes per read; collects what is written.
-struct Pieces {
-    input: Vec<u8>,
-    at: usize,
-    piece: usize,
-    output: Vec<u8>,
-}
-
-impl ErrorType for Pieces {
-    type Error = ErrorKind;
-}
-
-impl Read for Pieces {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, ErrorKind> {
-        let n = buf.len().min(self.piece).min(self.input.len() - self.at);
-        buf[..n].copy_from_slice(&self.input[self.at..self.at + n]);
-        self.at += n;
-        Ok(n)
-    }
-}
-
-impl Write for Pieces {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, ErrorKind> {
-        self.output.extend_from_slice(buf);
-        Ok(buf.len())
-    }
-
-    async fn flush(&mut self) -> Result<(), ErrorKind> {
-        Ok(())
-    }
-}
+/// The address the in-memory connection "arrived at" (the test requests' Host).
+const POLICY: Policy<'static> = Policy {
+    address: IpAddr::V4(Ipv4Addr::new(10, 53, 0, 1)),
+    allowed_origins: &[],
+    allowed_hosts: &[],
+};
 
 /// What the adapter did with one input.
 struct Run {
-    ended: Result<u16, Error<ErrorKind>>,
+    ended: Result<u16, Error<PipeError>>,
     /// The frames it sent after the `101`: opcode and payload.
     frames: Vec<(u8, Vec<u8>)>,
     /// The bytes it sent after the `101`.
     wire: Vec<u8>,
 }
 
+/// Buffer sizes of one run.
+#[derive(Clone, Copy)]
+struct Sizes {
+    rx: usize,
+    tx: usize,
+    message: usize,
+    reply: usize,
+}
+
+/// The firmware's sizes: a 1 KiB receive ring, a transmit ring just
+/// large enough for a whole 2 KiB reply, a 4 KiB message buffer.
+const MCU: Sizes = Sizes {
+    rx: 1024,
+    tx: 2052,
+    message: 4096,
+    reply: 2048,
+};
+
+/// The echo configuration's sizes, large enough for 64 KiB messages.
+const LARGE: Sizes = Sizes {
+    rx: 4096,
+    tx: 70_016,
+    message: 70_000,
+    reply: 70_000,
+};
+
 /// Runs the echo service over `input` cut into `piece`-byte reads.
 fn run(input: &[u8], piece: usize) -> Run {
-    let mut io = Pieces {
-        input: input.to_vec(),
-        at: 0,
-        piece,
-        output: Vec::new(),
+    run_with(input, piece, LARGE)
+}
+
+fn run_with(input: &[u8], piece: usize, sizes: Sizes) -> Run {
+    let mut io = Pipe::new(input, piece, sizes.rx, sizes.tx, 1 << 24);
+    let mut message = vec![0; sizes.message];
+    let limits = Limits {
+        reply: sizes.reply,
+        idle: None,
+        close: Duration::from_secs(1),
     };
-    let (mut raw, mut message, mut response, mut transmit) =
-        (vec![0; 512], vec![0; 70_000], vec![0; 70_000], vec![0; 70_000]);
-    let buffers = Buffers {
-        raw: &mut raw,
-        message: &mut message,
-        response: &mut response,
-        transmit: &mut transmit,
-    };
-    let mut conn = Connection::new(buffers, None);
+    let mut conn = Connection::new(&mut message, limits);
     let ended = block_on(async {
-        conn.accept(&mut io).await?;
-        conn.run(&mut io, &Echo).await
+        conn.accept(&mut io, &POLICY, |_| true).await?;
+        conn.run(&mut io, &Echo, &mut (), |_| {}).await
     });
-    let head_end = io
-        .output
+    let output = io.output();
+    let head_end = output
         .windows(4)
         .position(|w| w == b"\r\n\r\n")
         .map_or(0, |i| i + 4);
-    let wire = io.output[head_end..].to_vec();
+    let wire = output[head_end..].to_vec();
     let mut rest = &wire[..];
     let mut frames = Vec::new();
     while let Some((frame, used)) = parse_server_frame(rest) {
@@ -151,21 +154,19 @@ fn close_reason_that_is_not_utf8_is_answered_with_1007() {
 
 #[test]
 fn too_small_buffers_are_an_error_not_a_panic() {
-    let mut io = Pieces {
-        input: session(&[]),
-        at: 0,
-        piece: 64,
-        output: Vec::new(),
-    };
-    let (mut raw, mut message, mut response, mut transmit) = ([0; 16], [0; 16], [0; 16], [0; 16]);
-    let buffers = Buffers {
-        raw: &mut raw,
-        message: &mut message,
-        response: &mut response,
-        transmit: &mut transmit,
-    };
-    let mut conn = Connection::new(buffers, None);
-    assert_eq!(block_on(conn.accept(&mut io)), Err(Error::Buffers));
+    let sizes = [
+        // A message buffer below MIN_MESSAGE.
+        Sizes { message: 16, ..MCU },
+        // A reply capacity below the core's minimum.
+        Sizes { reply: 16, ..MCU },
+        // A transmit buffer that cannot hold a whole reply and its header.
+        Sizes { tx: MCU.reply + 3, ..MCU },
+    ];
+    for sizes in sizes {
+        let r = run_with(&session(&[]), 64, sizes);
+        assert_eq!(r.ended, Err(Error::Buffers));
+        assert!(r.wire.is_empty());
+    }
 }
 
 #[test]
@@ -177,9 +178,9 @@ fn a_65535_byte_echo_uses_the_minimal_16_bit_length() {
     assert_eq!(r.frames, vec![(op::TEXT, text.into_bytes())]);
 }
 
-/// The two values embedded-websocket 0.9.5 stores in 24-byte strings with
-/// an `unwrap`: whatever their length, the connection answers (101 for a
-/// valid key and short protocols, 400 otherwise) and never panics.
+/// Whatever the length of the key and of an offered protocol, the
+/// connection answers (101 for a valid key and short protocols, 400
+/// otherwise) and never panics.
 #[test]
 fn key_and_protocol_of_any_length_are_answered_never_a_panic() {
     for len in 0..=64 {
@@ -188,26 +189,20 @@ fn key_and_protocol_of_any_length_are_answered_never_a_panic() {
         let request = upgrade_request(&format!(
             "Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Protocol: {protocol}\r\n"
         ));
-        let mut io = Pieces {
-            input: request.into_bytes(),
-            at: 0,
-            piece: 7,
-            output: Vec::new(),
+        let mut io = Pipe::new(request.as_bytes(), 7, 512, 600, 1 << 20);
+        let mut message = [0; 512];
+        let limits = Limits {
+            reply: 512,
+            idle: None,
+            close: Duration::from_secs(1),
         };
-        let (mut raw, mut message, mut response, mut transmit) = ([0; 512], [0; 512], [0; 512], [0; 512]);
-        let buffers = Buffers {
-            raw: &mut raw,
-            message: &mut message,
-            response: &mut response,
-            transmit: &mut transmit,
-        };
-        let accepted = block_on(Connection::new(buffers, None).accept(&mut io)).is_ok();
+        let accepted = block_on(Connection::new(&mut message, limits).accept(&mut io, &POLICY, |_| true)).is_ok();
         let status = if accepted {
             "HTTP/1.1 101 "
         } else {
             "HTTP/1.1 400 "
         };
-        assert!(io.output.starts_with(status.as_bytes()), "key {len} bytes");
+        assert!(io.output().starts_with(status.as_bytes()), "key {len} bytes");
         assert_eq!(
             accepted,
             len == 24 && protocol.len() <= 24,
@@ -256,4 +251,85 @@ fn arbitrary_frame_streams_end_in_a_close_or_an_error() {
             Err(e) => assert_eq!(e, Error::PeerClosed, "round {round}"),
         }
     }
+}
+
+/// RFC 6455 8.1 "fail fast": a text message whose second fragment makes it
+/// invalid UTF-8 is closed with 1007 before its third fragment is read
+/// (Autobahn cases 6.4.1 and 6.4.2), and a single frame whose middle is
+/// invalid is closed before its end arrives (6.4.3, 6.4.4).
+#[test]
+fn invalid_utf8_fails_at_the_first_bad_byte_not_at_the_end() {
+    let fragments = session(&[
+        masked(false, op::TEXT, "\u{3ba}\u{1f79}".as_bytes()),
+        masked(false, op::CONTINUATION, b"\xf4\x90\x80\x80"),
+        masked(true, op::CONTINUATION, b"edited"),
+    ]);
+    let mut single = session(&[]);
+    let frame = masked(true, op::TEXT, b"\xce\xba\xf4\x90\x80\x80\x65\x64\x69\x74\x65\x64");
+    single.extend_from_slice(&frame);
+    for input in [fragments, single] {
+        for piece in [1, 3, 64] {
+            let mut io = Pipe::new(&input, piece, 1024, 2052, 1 << 20);
+            let mut message = [0; 4096];
+            let limits = Limits {
+                reply: 2048,
+                idle: None,
+                close: Duration::from_secs(1),
+            };
+            let mut conn = Connection::new(&mut message, limits);
+            let ended = block_on(async {
+                conn.accept(&mut io, &POLICY, |_| true).await?;
+                conn.run(&mut io, &Echo, &mut (), |_| {}).await
+            });
+            assert_eq!(ended, Ok(1007), "piece {piece}");
+            if piece <= 3 {
+                assert!(!io.consumed(), "piece {piece}: the rest of the message was read");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_message_ending_inside_a_character_closes_with_1007() {
+    let input = session(&[masked(true, op::TEXT, &"\u{263A}".as_bytes()[..2])]);
+    assert_eq!(run(&input, 1).ended, Ok(1007));
+}
+
+/// With the firmware's sizes, a 4 KiB message goes through a 1 KiB receive
+/// ring (the frame wrapping around it many times) and its 2 KiB reply
+/// through a transmit ring that holds one reply: every frame of the mix is
+/// answered, in order, whatever the piece size.
+#[test]
+fn mcu_sized_rings_carry_full_size_messages_and_replies() {
+    let big = "m".repeat(2048);
+    let input = session(&[
+        masked(true, op::TEXT, b"a"),
+        masked(true, op::TEXT, big.as_bytes()),
+        masked(true, op::PING, b"p"),
+        masked(true, op::TEXT, b"b"),
+        masked(true, op::TEXT, big.as_bytes()),
+        masked(true, op::CLOSE, &1000u16.to_be_bytes()),
+    ]);
+    for piece in [1, 5, 100, 1500] {
+        let r = run_with(&input, piece, MCU);
+        assert_eq!(r.ended, Ok(1000), "piece {piece}");
+        let expected = vec![
+            (op::TEXT, b"a".to_vec()),
+            (op::TEXT, big.clone().into_bytes()),
+            (op::PONG, b"p".to_vec()),
+            (op::TEXT, b"b".to_vec()),
+            (op::TEXT, big.clone().into_bytes()),
+            (op::CLOSE, 1000u16.to_be_bytes().to_vec()),
+        ];
+        assert_eq!(r.frames, expected, "piece {piece}");
+    }
+}
+
+/// The echo's reply capacity is the firmware's 2 KiB: a 2049-byte text
+/// fits the 4 KiB message buffer but not the reply, so the echo closes with
+/// 1009 (the protocol answers `Response too large` instead).
+#[test]
+fn a_reply_longer_than_the_reply_capacity_is_refused_by_the_service() {
+    let input = session(&[masked(true, op::TEXT, "n".repeat(2049).as_bytes())]);
+    assert_eq!(run_with(&input, 4096, MCU).ended, Ok(1009));
 }

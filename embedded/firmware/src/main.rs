@@ -42,9 +42,11 @@ bind_interrupts!(struct Irqs {
 
 /// Concurrent WebSocket sessions.
 const SESSIONS: usize = 4;
-/// TCP buffers, upgrade-request buffer, frame limit (DESIGN.md: 4 KiB on
-/// MCU) and response buffer (2 KiB on MCU).
-type SessionSlot = Slot<4096, 1024, 4096, 2048>;
+/// TCP receive buffer (the receive window), TCP transmit buffer (a whole
+/// 2 KiB reply and its 4-byte header, rounded up), frame limit (DESIGN.md:
+/// 4 KiB on MCU) and reply capacity (2 KiB on MCU, written inside the
+/// transmit buffer).
+type SessionSlot = Slot<1024, 2064, 4096, 2048>;
 /// The address used when no DHCP server answers in time.
 const FALLBACK: Ipv4Address = Ipv4Address::new(192, 168, 1, 53);
 const DHCP_TIMEOUT: Duration = Duration::from_secs(10);
@@ -58,7 +60,8 @@ type Shared = SharedServer<CriticalSectionRawMutex, Board<Nucleo>, Uptime>;
 static PACKETS: StaticCell<PacketQueue<4, 4>> = StaticCell::new();
 static SLOTS: ConstStaticCell<[SessionSlot; SESSIONS]> =
     ConstStaticCell::new([const { SessionSlot::new() }; SESSIONS]);
-static RESOURCES: ConstStaticCell<StackResources<{ SESSIONS + 2 }>> =
+/// One socket per session and one for DHCP.
+static RESOURCES: ConstStaticCell<StackResources<{ SESSIONS + 1 }>> =
     ConstStaticCell::new(StackResources::new());
 static SERVER: StaticCell<Shared> = StaticCell::new();
 static LED: Signal<CriticalSectionRawMutex, Led> = Signal::new();

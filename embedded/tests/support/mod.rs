@@ -1,6 +1,7 @@
-//! Test support: a thread-parking executor, two embassy-net stacks joined
-//! by an in-memory Ethernet link, a minimal WebSocket client and a small
-//! vehicle backend.
+//! Test support: a thread-parking executor, embassy-net stacks joined by
+//! an in-memory Ethernet hub (the adapter's and [`CLIENTS`] clients', each
+//! with its own address), a minimal WebSocket client and a small vehicle
+//! backend.
 #![allow(dead_code)]
 
 mod executor;
@@ -8,6 +9,7 @@ mod executor;
 pub use executor::block_on;
 
 use std::future::Future;
+use std::task::Poll;
 
 use embassy_futures::join::join;
 use embassy_futures::select::{Either, select};
@@ -15,7 +17,7 @@ use embassy_net::tcp::TcpSocket;
 use embassy_net::{Config as NetConfig, Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
 use embassy_net_driver_channel::{self as ch, driver::HardwareAddress, driver::LinkState};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
-use embassy_time::{Duration, with_timeout};
+use embassy_time::{Duration, Timer, with_timeout};
 use lluav_core::{Args, Auth, Backend, Command, CommandId, Context as Ctx, Failure, Fields, Server, Step};
 use lluav_embedded::{Config, Service, SharedServer, Slot, serve};
 
@@ -24,34 +26,56 @@ pub const CLIENT_IP: Ipv4Address = Ipv4Address::new(10, 53, 0, 2);
 pub const PASSWORD: &str = "secret";
 /// Generous: only a hung adapter ever reaches it.
 pub const TEST_TIMEOUT: Duration = Duration::from_secs(60);
+/// Client stacks on the hub, at 10.53.0.2, 10.53.0.3, ...
+pub const CLIENTS: usize = 4;
 
 const MTU: usize = 1514;
 type Link = ch::State<MTU, 8, 8>;
 
 /// Frame limit of the adapter under test.
 pub const FRAME: usize = 4096;
+/// Reply capacity of the adapter under test.
+pub const OUT: usize = 2048;
 /// Concurrent sessions of the adapter under test.
 pub const SESSIONS: usize = 4;
-pub type TestSlot = Slot<4096, 1024, FRAME, 2048>;
+/// The firmware's slot.
+pub type TestSlot = Slot<1024, 2304, FRAME, OUT>;
 
 fn leak<T>(value: T) -> &'static mut T {
     Box::leak(Box::new(value))
 }
 
-/// Copies every frame one device transmits into the other's receive queue.
-async fn wire(from: &mut ch::TxRunner<'static, MTU>, to: &mut ch::RxRunner<'static, MTU>) {
+/// The address of client `i`.
+pub fn client_ip(i: usize) -> Ipv4Address {
+    Ipv4Address::new(10, 53, 0, 2 + i as u8)
+}
+
+/// Copies every frame a device transmits to every other device (smoltcp
+/// drops frames for other MACs).
+async fn hub<const D: usize>(tx: &mut [ch::TxRunner<'static, MTU>; D], rx: &mut [ch::RxRunner<'static, MTU>; D]) {
     loop {
-        let packet = from.tx_buf().await;
-        let len = packet.len();
-        let slot = to.rx_buf().await;
-        slot[..len].copy_from_slice(packet);
-        to.rx_done(len);
-        from.tx_done();
+        let (from, packet) = core::future::poll_fn(|cx| {
+            for (i, t) in tx.iter_mut().enumerate() {
+                if let Poll::Ready(p) = t.poll_tx_buf(cx) {
+                    let packet = p.to_vec();
+                    t.tx_done();
+                    return Poll::Ready((i, packet));
+                }
+            }
+            Poll::Pending
+        })
+        .await;
+        for (i, r) in rx.iter_mut().enumerate() {
+            if i != from {
+                let slot = r.rx_buf().await;
+                slot[..packet.len()].copy_from_slice(&packet);
+                r.rx_done(packet.len());
+            }
+        }
     }
 }
 
 fn stack(
-    link: &'static mut Link,
     mac: u8,
     ip: Ipv4Address,
     seed: u64,
@@ -60,47 +84,90 @@ fn stack(
     embassy_net::Runner<'static, ch::Device<'static, MTU>>,
     ch::Runner<'static, MTU>,
 ) {
-    let (runner, device) = ch::new(link, HardwareAddress::Ethernet([2, 0, 0, 0, 0, mac]));
+    let (runner, device) = ch::new(leak(Link::new()), HardwareAddress::Ethernet([2, 0, 0, 0, 0, mac]));
     let config = NetConfig::ipv4_static(StaticConfigV4 {
         address: Ipv4Cidr::new(ip, 24),
         gateway: None,
         dns_servers: Default::default(),
     });
-    let (stack, net) = embassy_net::new(device, config, leak(StackResources::<8>::new()), seed);
+    let (stack, net) = embassy_net::new(device, config, leak(StackResources::<16>::new()), seed);
     (stack, net, runner)
 }
 
 /// Runs `test` as a client on one stack against the adapter serving
-/// `service` on the other, within [`TEST_TIMEOUT`].
+/// `service` on another, within [`TEST_TIMEOUT`].
 pub fn with_service<S, F, Fut>(service: S, test: F)
 where
     S: Service,
     F: FnOnce(Stack<'static>) -> Fut,
     Fut: Future<Output = ()>,
 {
-    let (server_stack, mut server_net, server_link) = stack(leak(Link::new()), 1, SERVER_IP, 1);
-    let (client_stack, mut client_net, client_link) = stack(leak(Link::new()), 2, CLIENT_IP, 2);
-    let (server_state, mut server_rx, mut server_tx) = server_link.split();
-    let (client_state, mut client_rx, mut client_tx) = client_link.split();
-    server_state.set_link_state(LinkState::Up);
-    client_state.set_link_state(LinkState::Up);
-    let slots = leak([const { TestSlot::new() }; SESSIONS]);
-    let config = Config::new();
-    let world = join(
-        join(server_net.run(), client_net.run()),
-        join(
-            join(
-                wire(&mut server_tx, &mut client_rx),
-                wire(&mut client_tx, &mut server_rx),
-            ),
-            serve(server_stack, &config, &service, slots),
-        ),
+    with_world(service, Config::new(), |clients| test(clients[0]));
+}
+
+/// Runs `test` with [`CLIENTS`] client stacks (one address each) against
+/// the adapter serving `service` with `config` and [`SESSIONS`] slots,
+/// within [`TEST_TIMEOUT`].
+pub fn with_world<S, F, Fut>(service: S, config: Config, test: F)
+where
+    S: Service,
+    F: FnOnce([Stack<'static>; CLIENTS]) -> Fut,
+    Fut: Future<Output = ()>,
+{
+    let (server, mut server_net, server_link) = stack(1, SERVER_IP, 1);
+    let mut clients = Vec::new();
+    let mut links = vec![server_link];
+    for i in 0..CLIENTS {
+        let (client, net, link) = stack(2 + i as u8, client_ip(i), 2 + i as u64);
+        clients.push((client, net));
+        links.push(link);
+    }
+    let (mut rxs, mut txs) = (Vec::new(), Vec::new());
+    for link in links {
+        let (state, rx, tx) = link.split();
+        state.set_link_state(LinkState::Up);
+        rxs.push(rx);
+        txs.push(tx);
+    }
+    let mut rxs: [_; CLIENTS + 1] = rxs.try_into().ok().unwrap();
+    let mut txs: [_; CLIENTS + 1] = txs.try_into().ok().unwrap();
+    let stacks: [Stack<'static>; CLIENTS] = core::array::from_fn(|i| clients[i].0);
+    let nets = embassy_futures::join::join_array(
+        <[_; CLIENTS]>::try_from(clients.into_iter().map(|(_, net)| net).collect::<Vec<_>>())
+            .ok()
+            .unwrap()
+            .map(|mut net| async move { net.run().await }),
     );
-    let body = with_timeout(TEST_TIMEOUT, test(client_stack));
+    let slots = leak([const { TestSlot::new() }; SESSIONS]);
+    let world = join(
+        join(server_net.run(), nets),
+        join(hub(&mut txs, &mut rxs), serve(server, &config, &service, slots)),
+    );
+    let body = with_timeout(TEST_TIMEOUT, test(stacks));
     match block_on(select(world, body)) {
         Either::First(_) => unreachable!("the network never stops"),
         Either::Second(result) => result.expect("the test timed out"),
     }
+}
+
+/// Runs futures concurrently until all are done.
+pub async fn join_all<F: Future<Output = ()>>(futures: impl IntoIterator<Item = F>) {
+    let mut futures: Vec<_> = futures.into_iter().map(Box::pin).collect();
+    core::future::poll_fn(|cx| {
+        futures.retain_mut(|f| f.as_mut().poll(cx).is_pending());
+        if futures.is_empty() { Poll::Ready(()) } else { Poll::Pending }
+    })
+    .await;
+}
+
+/// The protocol server with [`Vehicle`] and password [`PASSWORD`].
+pub fn protocol_server() -> SharedServer<NoopRawMutex, Vehicle, fn() -> i64> {
+    let server = Server::new(
+        Vehicle::default(),
+        (|| 1_714_233_600_000) as fn() -> i64,
+        Auth::new(Some(PASSWORD)).unwrap(),
+    );
+    SharedServer::new(server)
 }
 
 /// Runs `test` against the protocol server with [`Vehicle`] and password [`PASSWORD`].
@@ -109,12 +176,7 @@ where
     F: FnOnce(Stack<'static>) -> Fut,
     Fut: Future<Output = ()>,
 {
-    let server = Server::new(
-        Vehicle::default(),
-        || 1_714_233_600_000,
-        Auth::new(Some(PASSWORD)).unwrap(),
-    );
-    with_service(SharedServer::<NoopRawMutex, _, _>::new(server), test)
+    with_service(protocol_server(), test)
 }
 
 /// A vehicle that arms on `takeoff` and disarms on `land`/`disarm`.
@@ -164,8 +226,13 @@ pub const KEY: &str = "dGhlIHNhbXBsZSBub25jZQ==";
 pub const ACCEPT: &str = "s3pPLMBiTxaQ9kYGzzhZRbK+xOo=";
 
 pub fn upgrade_request(extra: &str) -> String {
+    upgrade_request_to(&format!("{SERVER_IP}:53001"), extra)
+}
+
+/// An upgrade request with the RFC example key whose `Host` is `host`.
+pub fn upgrade_request_to(host: &str, extra: &str) -> String {
     format!(
-        "GET / HTTP/1.1\r\nHost: {SERVER_IP}:53001\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n{extra}\r\n"
+        "GET / HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n{extra}\r\n"
     )
 }
 
@@ -203,12 +270,50 @@ impl Client {
 
     /// Opens a TCP connection to the adapter, if it accepts one.
     pub async fn try_tcp(stack: Stack<'static>) -> Result<Client, embassy_net::tcp::ConnectError> {
-        let mut socket = TcpSocket::new(stack, leak([0; 8192]), leak([0; 8192]));
+        Client::try_tcp_with(stack, 8192).await
+    }
+
+    /// Opens a TCP connection with `buffer`-byte socket buffers (attackers
+    /// open many, and their buffers are leaked).
+    pub async fn try_tcp_with(stack: Stack<'static>, buffer: usize) -> Result<Client, embassy_net::tcp::ConnectError> {
+        let rx = Box::leak(vec![0; buffer].into_boxed_slice());
+        let tx = Box::leak(vec![0; buffer].into_boxed_slice());
+        let mut socket = TcpSocket::new(stack, rx, tx);
         socket.connect((SERVER_IP, lluav_embedded::PORT)).await?;
         Ok(Client {
             socket,
             inbox: Vec::new(),
         })
+    }
+
+    /// Connects and upgrades as a patient operator would: a refused or
+    /// reset attempt is retried after a short pause.
+    pub async fn connect_retrying(stack: Stack<'static>) -> Client {
+        loop {
+            if let Ok(mut client) = Client::try_tcp(stack).await {
+                let request = upgrade_request(&format!("Sec-WebSocket-Key: {KEY}\r\n"));
+                match client.try_request(&request).await {
+                    Some(head) if head.starts_with("HTTP/1.1 101 ") => return client,
+                    Some(head) => panic!("the upgrade was refused: {head}"),
+                    None => {}
+                }
+            }
+            Timer::after_millis(20).await;
+        }
+    }
+
+    /// Sends bytes without waiting for them to be acknowledged; false if
+    /// the connection is gone.
+    pub async fn try_raw(&mut self, bytes: &[u8]) -> bool {
+        embedded_io_async::Write::write_all(&mut self.socket, bytes).await.is_ok()
+    }
+
+    /// Waits until the server ends the connection (close, reset or its
+    /// TCP timeout), discarding whatever it sends.
+    pub async fn wait_until_dropped(&mut self) {
+        while self.more().await {
+            self.inbox.clear();
+        }
     }
 
     /// Connects and upgrades with the RFC example key, checking the accept value.
@@ -235,13 +340,25 @@ impl Client {
 
     /// Sends an upgrade request; returns the response head.
     pub async fn request(&mut self, request: &str) -> String {
-        self.raw(request.as_bytes()).await;
+        self.try_request(request)
+            .await
+            .expect("closed before the response head")
+    }
+
+    /// Sends an upgrade request; returns the response head, or `None` if
+    /// the connection ended first.
+    pub async fn try_request(&mut self, request: &str) -> Option<String> {
+        if !self.try_raw(request.as_bytes()).await {
+            return None;
+        }
         loop {
             if let Some(end) = self.inbox.windows(4).position(|w| w == b"\r\n\r\n") {
                 let head: Vec<u8> = self.inbox.drain(..end + 4).collect();
-                return String::from_utf8(head).expect("an ASCII head");
+                return Some(String::from_utf8(head).expect("an ASCII head"));
             }
-            assert!(self.more().await, "closed before the response head");
+            if !self.more().await {
+                return None;
+            }
         }
     }
 

@@ -1,0 +1,113 @@
+//! What a connection runs over: a byte stream whose receive and transmit
+//! buffers it reads and writes in place, as embassy-net's [`TcpSocket`]
+//! offers with `read_with` and `write_with`.
+//!
+//! The connection never copies bytes through a buffer of its own on the
+//! way in or out: frames are parsed and unmasked straight out of the
+//! socket's receive buffer, and replies are written by the protocol core
+//! straight into the socket's transmit buffer (see [`crate::connection`]
+//! for what that costs and what it cannot do).
+
+use embassy_net::tcp::{Error as TcpError, State, TcpSocket};
+
+/// A byte stream with in-place access to its buffers.
+// Futures of embassy tasks never cross threads, so the `Send` bound that
+// `async_fn_in_trait` warns about would only exclude single-core executors.
+#[allow(async_fn_in_trait)]
+pub trait Transport {
+    /// Why the stream failed.
+    type Error: core::fmt::Debug;
+
+    /// Waits until received bytes are buffered, then calls `f` with the
+    /// longest contiguous run of them; `f` returns how many it consumed
+    /// (they leave the buffer) and a value. `Ok(None)` when the peer has
+    /// closed its side and every byte was consumed.
+    async fn read_with<R, F>(&mut self, f: F) -> Result<Option<R>, Self::Error>
+    where
+        F: FnOnce(&mut [u8]) -> (usize, R);
+
+    /// Waits until transmit space is free, then calls `f` with the longest
+    /// contiguous run of it; `f` returns how many bytes it filled (they are
+    /// sent) and a value. The run only grows while nothing is written, and
+    /// once everything written is acknowledged it is the whole buffer.
+    async fn write_with<R, F>(&mut self, f: F) -> Result<R, Self::Error>
+    where
+        F: FnOnce(&mut [u8]) -> (usize, R);
+
+    /// Waits until everything written has been sent and acknowledged.
+    async fn flush(&mut self) -> Result<(), Self::Error>;
+
+    /// The size of the transmit buffer.
+    fn send_capacity(&self) -> usize;
+}
+
+impl Transport for TcpSocket<'_> {
+    type Error = TcpError;
+
+    async fn read_with<R, F>(&mut self, f: F) -> Result<Option<R>, TcpError>
+    where
+        F: FnOnce(&mut [u8]) -> (usize, R),
+    {
+        match TcpSocket::read_with(self, f).await {
+            Ok(r) => Ok(Some(r)),
+            // embassy-net reports the peer's FIN like a reset; the state
+            // tells them apart.
+            Err(_)
+                if matches!(
+                    self.state(),
+                    State::CloseWait | State::LastAck | State::Closing | State::TimeWait
+                ) =>
+            {
+                Ok(None)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    async fn write_with<R, F>(&mut self, f: F) -> Result<R, TcpError>
+    where
+        F: FnOnce(&mut [u8]) -> (usize, R),
+    {
+        TcpSocket::write_with(self, f).await
+    }
+
+    async fn flush(&mut self) -> Result<(), TcpError> {
+        TcpSocket::flush(self).await
+    }
+
+    fn send_capacity(&self) -> usize {
+        TcpSocket::send_capacity(self)
+    }
+}
+
+/// Writes all of `bytes`, in as many pieces as the transmit buffer's free
+/// runs need.
+pub(crate) async fn write_all<T: Transport>(io: &mut T, mut bytes: &[u8]) -> Result<(), T::Error> {
+    while !bytes.is_empty() {
+        let n = io
+            .write_with(|room| {
+                let n = room.len().min(bytes.len());
+                if let (Some(dst), Some(src)) = (room.get_mut(..n), bytes.get(..n)) {
+                    dst.copy_from_slice(src);
+                }
+                (n, n)
+            })
+            .await?;
+        bytes = bytes.get(n..).unwrap_or(&[]);
+    }
+    Ok(())
+}
+
+/// Waits until the transmit buffer offers `len` contiguous bytes: at once
+/// if the free run is long enough, otherwise once everything written so
+/// far is acknowledged (then the run is the whole buffer, which the caller
+/// made at least `len` long).
+pub(crate) async fn reserve<T: Transport>(io: &mut T, len: usize) -> Result<bool, T::Error> {
+    for _ in 0..2 {
+        if io.write_with(|room| (0, room.len())).await? >= len {
+            return Ok(true);
+        }
+        io.flush().await?;
+    }
+    Ok(false)
+}
