@@ -166,10 +166,13 @@ impl<const N: usize> Table<N> {
 
     /// `slot` is waiting for a connection.
     pub fn listening(&self, slot: usize) {
-        self.set(slot, Entry {
-            phase: Phase::Listening,
-            ..Entry::IDLE
-        });
+        self.set(
+            slot,
+            Entry {
+                phase: Phase::Listening,
+                ..Entry::IDLE
+            },
+        );
         if let Some(signal) = self.evict.get(slot) {
             signal.reset();
         }
@@ -189,11 +192,14 @@ impl<const N: usize> Table<N> {
             self.set(slot, Entry::IDLE);
             return Err(Refusal::TooManyHandshakes);
         }
-        self.set(slot, Entry {
-            phase: Phase::Handshake,
-            peer,
-            since: now,
-        });
+        self.set(
+            slot,
+            Entry {
+                phase: Phase::Handshake,
+                peer,
+                since: now,
+            },
+        );
         if self.others(slot).any(|(_, e)| e.phase == Phase::Listening) {
             return Ok(None);
         }
@@ -263,7 +269,10 @@ impl<const N: usize> Table<N> {
         let Some(peer) = peer else {
             return Some(0);
         };
-        let known = self.offenders.iter().find(|c| c.get().is_some_and(|o| o.peer == peer));
+        let known = self
+            .offenders
+            .iter()
+            .find(|c| c.get().is_some_and(|o| o.peer == peer));
         if let Some(cell) = known {
             let Some(mut o) = cell.get() else {
                 return Some(0);
@@ -281,10 +290,7 @@ impl<const N: usize> Table<N> {
             return Some(o.unlogged);
         }
         // A free entry, or the one logged longest ago.
-        let oldest = self
-            .offenders
-            .iter()
-            .min_by_key(|c| c.get().map(|o| o.logged));
+        let oldest = self.offenders.iter().min_by_key(|c| c.get().map(|o| o.logged));
         if let Some(cell) = oldest {
             cell.set(Some(Offender {
                 peer,

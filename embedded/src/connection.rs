@@ -194,8 +194,14 @@ impl<'b> Connection<'b> {
             let login = self.login.unwrap_or(Instant::MAX);
             let closed = match event {
                 Event::More => None,
-                Event::Control(opcode) => with_deadline(login, self.control(io, opcode)).await.map_err(|_| Error::LoginTimeout)??,
-                Event::Fail(code) => Some(with_deadline(login, send_close(io, code)).await.map_err(|_| Error::LoginTimeout)??),
+                Event::Control(opcode) => with_deadline(login, self.control(io, opcode))
+                    .await
+                    .map_err(|_| Error::LoginTimeout)??,
+                Event::Fail(code) => Some(
+                    with_deadline(login, send_close(io, code))
+                        .await
+                        .map_err(|_| Error::LoginTimeout)??,
+                ),
                 Event::Message | Event::InvalidText | Event::Oversized => {
                     let (closed, now) = with_deadline(login, self.respond(io, service, session, event))
                         .await
@@ -271,7 +277,11 @@ impl<'b> Connection<'b> {
     }
 
     /// Answers a control frame; `Some(code)` when the connection is closing.
-    async fn control<T: Transport>(&self, io: &mut T, opcode: Opcode) -> Result<Option<u16>, Error<T::Error>> {
+    async fn control<T: Transport>(
+        &self,
+        io: &mut T,
+        opcode: Opcode,
+    ) -> Result<Option<u16>, Error<T::Error>> {
         let payload = self.reader.control();
         match opcode {
             Opcode::Ping => {
@@ -319,7 +329,9 @@ fn write_reply(
         Outcome::Close(code) => return (0, Sent::Close(code)),
         // A reply must be written where the handler was asked to write it.
         Outcome::Reply(r) if core::ptr::eq(r.as_ptr(), start) => (r.len(), Sent::Reply),
-        Outcome::ReplyThenClose(r, code) if core::ptr::eq(r.as_ptr(), start) => (r.len(), Sent::ReplyThenClose(code)),
+        Outcome::ReplyThenClose(r, code) if core::ptr::eq(r.as_ptr(), start) => {
+            (r.len(), Sent::ReplyThenClose(code))
+        }
         _ => return (0, Sent::Close(CloseCode::InternalError)),
     };
     let header = frame::header_len(len);

@@ -136,7 +136,11 @@ mod tests {
     }
 
     fn request<'a>(host: &'a str, origin: Option<&'a str>) -> Request<'a> {
-        Request { key: KEY, host, origin }
+        Request {
+            key: KEY,
+            host,
+            origin,
+        }
     }
 
     #[test]
@@ -144,20 +148,44 @@ mod tests {
         let p = policy([192, 168, 1, 53]);
         assert_eq!(p.check(&request("192.168.1.53", None)), Ok(()));
         assert_eq!(p.check(&request("192.168.1.53:53001", None)), Ok(()));
-        assert_eq!(p.check(&request("192.168.1.54:53001", None)), Err(Rejection::ForeignHost));
-        assert_eq!(p.check(&request("evil.example:53001", None)), Err(Rejection::ForeignHost));
-        assert_eq!(p.check(&request("localhost:53001", None)), Err(Rejection::ForeignHost));
-        assert_eq!(p.check(&request("192.168.1.53:x", None)), Err(Rejection::ForeignHost));
-        assert_eq!(p.check(&request("192.168.1.53:99999", None)), Err(Rejection::ForeignHost));
+        assert_eq!(
+            p.check(&request("192.168.1.54:53001", None)),
+            Err(Rejection::ForeignHost)
+        );
+        assert_eq!(
+            p.check(&request("evil.example:53001", None)),
+            Err(Rejection::ForeignHost)
+        );
+        assert_eq!(
+            p.check(&request("localhost:53001", None)),
+            Err(Rejection::ForeignHost)
+        );
+        assert_eq!(
+            p.check(&request("192.168.1.53:x", None)),
+            Err(Rejection::ForeignHost)
+        );
+        assert_eq!(
+            p.check(&request("192.168.1.53:99999", None)),
+            Err(Rejection::ForeignHost)
+        );
     }
 
     #[test]
     fn loopback_names_pass_only_when_bound_to_loopback() {
         let p = policy([127, 0, 0, 1]);
-        for host in ["localhost", "LOCALHOST:53001", "127.0.0.1", "127.53.0.1:53001", "[::1]:53001"] {
+        for host in [
+            "localhost",
+            "LOCALHOST:53001",
+            "127.0.0.1",
+            "127.53.0.1:53001",
+            "[::1]:53001",
+        ] {
             assert_eq!(p.check(&request(host, None)), Ok(()), "{host}");
         }
-        assert_eq!(p.check(&request("evil.example", None)), Err(Rejection::ForeignHost));
+        assert_eq!(
+            p.check(&request("evil.example", None)),
+            Err(Rejection::ForeignHost)
+        );
     }
 
     #[test]
@@ -167,7 +195,10 @@ mod tests {
             ..policy([10, 0, 0, 2])
         };
         assert_eq!(p.check(&request("Drone.Local:53001", None)), Ok(()));
-        assert_eq!(p.check(&request("other.local:53001", None)), Err(Rejection::ForeignHost));
+        assert_eq!(
+            p.check(&request("other.local:53001", None)),
+            Err(Rejection::ForeignHost)
+        );
     }
 
     #[test]
@@ -200,7 +231,10 @@ mod tests {
             allowed_origins: &["http://gcs.local:8080"],
             ..policy([10, 0, 0, 2])
         };
-        assert_eq!(named.check(&request("10.0.0.2", Some("http://gcs.local:8080"))), Ok(()));
+        assert_eq!(
+            named.check(&request("10.0.0.2", Some("http://gcs.local:8080"))),
+            Ok(())
+        );
         assert_eq!(
             named.check(&request("10.0.0.2", Some("http://gcs.local:8081"))),
             Err(Rejection::ForeignOrigin)
@@ -209,7 +243,10 @@ mod tests {
             allowed_origins: &["*"],
             ..policy([10, 0, 0, 2])
         };
-        assert_eq!(any.check(&request("10.0.0.2", Some("https://evil.example"))), Ok(()));
+        assert_eq!(
+            any.check(&request("10.0.0.2", Some("https://evil.example"))),
+            Ok(())
+        );
         // The allow-list of origins never excuses a foreign Host.
         assert_eq!(
             any.check(&request("evil.example", Some("https://evil.example"))),

@@ -96,7 +96,11 @@ impl<'b> Reader<'b> {
             };
             *slot = b;
             self.len += 1;
-            if self.message.get(..self.len).is_some_and(|m| m.ends_with(b"\r\n\r\n")) {
+            if self
+                .message
+                .get(..self.len)
+                .is_some_and(|m| m.ends_with(b"\r\n\r\n"))
+            {
                 return (i + 1, Some(Ok(self.len)));
             }
         }
@@ -178,8 +182,10 @@ impl<'b> Reader<'b> {
         }
         // Too few bytes for a header (at most 13): carry them.
         let take = (MAX_HEADER - self.carried).min(rest.len());
-        let (Some(dst), Some(src)) = (self.carry.get_mut(self.carried..self.carried + take), rest.get(..take))
-        else {
+        let (Some(dst), Some(src)) = (
+            self.carry.get_mut(self.carried..self.carried + take),
+            rest.get(..take),
+        ) else {
             return Err(CloseCode::InternalError);
         };
         dst.copy_from_slice(src);
@@ -201,7 +207,9 @@ impl<'b> Reader<'b> {
         }
         match (header.opcode, self.kind) {
             (Opcode::Continuation, Some(_)) => {}
-            (Opcode::Continuation, None) | (_, Some(_)) => return Some(Event::Fail(CloseCode::ProtocolError)),
+            (Opcode::Continuation, None) | (_, Some(_)) => {
+                return Some(Event::Fail(CloseCode::ProtocolError));
+            }
             (opcode, None) => {
                 self.kind = Some(opcode);
                 self.len = 0;

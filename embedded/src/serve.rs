@@ -9,13 +9,13 @@ use embassy_net::tcp::{Error as TcpError, TcpSocket};
 use embassy_time::{Instant, with_timeout};
 use lluav_core::MIN_RESPONSE_CAPACITY;
 
+use crate::Config;
 use crate::admission::{Offense, Refusal, Table};
 use crate::connection::{Connection, Error, Limits, MIN_MESSAGE};
-use crate::handshake::Request;
 use crate::frame::header_len;
+use crate::handshake::Request;
 use crate::log::{debug, info, warning};
 use crate::policy::Policy;
-use crate::Config;
 use crate::service::{Handler, Service};
 
 /// The buffers of one session: the TCP receive buffer (`RX` bytes: the
@@ -41,7 +41,10 @@ impl<const RX: usize, const TX: usize, const FRAME: usize, const OUT: usize> Slo
             assert!(RX > 0, "RX must not be empty");
             assert!(FRAME >= MIN_MESSAGE, "FRAME must hold MIN_MESSAGE bytes");
             assert!(OUT >= MIN_RESPONSE_CAPACITY, "OUT is below the core's minimum");
-            assert!(TX >= OUT + header_len(OUT), "TX must hold a whole reply and its header");
+            assert!(
+                TX >= OUT + header_len(OUT),
+                "TX must hold a whole reply and its header"
+            );
         }
         Slot {
             rx: [0; RX],
@@ -51,7 +54,9 @@ impl<const RX: usize, const TX: usize, const FRAME: usize, const OUT: usize> Slo
     }
 }
 
-impl<const RX: usize, const TX: usize, const FRAME: usize, const OUT: usize> Default for Slot<RX, TX, FRAME, OUT> {
+impl<const RX: usize, const TX: usize, const FRAME: usize, const OUT: usize> Default
+    for Slot<RX, TX, FRAME, OUT>
+{
     fn default() -> Self {
         Slot::new()
     }
@@ -60,7 +65,14 @@ impl<const RX: usize, const TX: usize, const FRAME: usize, const OUT: usize> Def
 /// Serves `service` on `stack` with one concurrent session per slot, for
 /// ever. The stack needs one socket per slot (plus any the firmware uses
 /// itself, e.g. DHCP). See [`crate::admission`] for who gets a slot.
-pub async fn serve<S, const N: usize, const RX: usize, const TX: usize, const FRAME: usize, const OUT: usize>(
+pub async fn serve<
+    S,
+    const N: usize,
+    const RX: usize,
+    const TX: usize,
+    const FRAME: usize,
+    const OUT: usize,
+>(
     stack: Stack<'_>,
     config: &Config,
     service: &S,
@@ -138,7 +150,8 @@ impl<const N: usize> Place<'_, N> {
                     // The session, if the connection gets one, is closed
                     // however the connection ends.
                     let mut session = None;
-                    let served = self.connection(&mut socket, service, peer, &mut session, &mut slot.message, OUT);
+                    let served =
+                        self.connection(&mut socket, service, peer, &mut session, &mut slot.message, OUT);
                     let end = match select(served, self.table.evicted(self.index)).await {
                         Either::First(end) => end,
                         Either::Second(()) => End::Evicted,

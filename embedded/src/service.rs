@@ -44,7 +44,12 @@ pub trait Handler {
 
     /// Answers one complete message, writing any reply at the start of
     /// `out` (the reply must be a prefix of `out`).
-    fn handle<'o>(&mut self, session: &mut Self::Session, message: Message<'_>, out: &'o mut [u8]) -> Outcome<'o>;
+    fn handle<'o>(
+        &mut self,
+        session: &mut Self::Session,
+        message: Message<'_>,
+        out: &'o mut [u8],
+    ) -> Outcome<'o>;
 
     /// Whether `session` may run commands now: it has logged in, or no
     /// password is required. A connection whose session is not admitted

@@ -62,7 +62,11 @@ impl Ring {
         }
         let cap = self.capacity();
         let at = (self.start + self.len) % cap.max(1);
-        let end = if at >= self.start && self.len < cap { cap } else { self.start };
+        let end = if at >= self.start && self.len < cap {
+            cap
+        } else {
+            self.start
+        };
         self.storage.get_mut(at..end).unwrap_or_default()
     }
 

@@ -77,12 +77,18 @@ mod tests {
     #[test]
     fn a_character_split_between_pieces_is_valid() {
         let smiley = "\u{263A}".as_bytes();
-        assert_eq!(feed(&[b"a", &smiley[..1], &smiley[1..2], &smiley[2..]]), (Verdict::Open, true));
+        assert_eq!(
+            feed(&[b"a", &smiley[..1], &smiley[1..2], &smiley[2..]]),
+            (Verdict::Open, true)
+        );
     }
 
     #[test]
     fn a_message_ending_inside_a_character_is_incomplete() {
-        assert_eq!(feed(&[b"ab", &"\u{263A}".as_bytes()[..2]]), (Verdict::Open, false));
+        assert_eq!(
+            feed(&[b"ab", &"\u{263A}".as_bytes()[..2]]),
+            (Verdict::Open, false)
+        );
     }
 
     #[test]

@@ -8,8 +8,8 @@ use embassy_time::Timer;
 use lluav_embedded::Config;
 use serde_json::json;
 use support::{
-    Client, KEY, PASSWORD, SESSIONS, join_all, op, protocol_server, upgrade_request, with_server, with_service,
-    with_world,
+    Client, KEY, PASSWORD, SESSIONS, join_all, op, protocol_server, upgrade_request, with_server,
+    with_service, with_world,
 };
 
 #[test]

@@ -160,7 +160,10 @@ fn too_small_buffers_are_an_error_not_a_panic() {
         // A reply capacity below the core's minimum.
         Sizes { reply: 16, ..MCU },
         // A transmit buffer that cannot hold a whole reply and its header.
-        Sizes { tx: MCU.reply + 3, ..MCU },
+        Sizes {
+            tx: MCU.reply + 3,
+            ..MCU
+        },
     ];
     for sizes in sizes {
         let r = run_with(&session(&[]), 64, sizes);
@@ -196,7 +199,8 @@ fn key_and_protocol_of_any_length_are_answered_never_a_panic() {
             idle: None,
             close: Duration::from_secs(1),
         };
-        let accepted = block_on(Connection::new(&mut message, limits).accept(&mut io, &POLICY, |_| true)).is_ok();
+        let accepted =
+            block_on(Connection::new(&mut message, limits).accept(&mut io, &POLICY, |_| true)).is_ok();
         let status = if accepted {
             "HTTP/1.1 101 "
         } else {
@@ -265,7 +269,11 @@ fn invalid_utf8_fails_at_the_first_bad_byte_not_at_the_end() {
         masked(true, op::CONTINUATION, b"edited"),
     ]);
     let mut single = session(&[]);
-    let frame = masked(true, op::TEXT, b"\xce\xba\xf4\x90\x80\x80\x65\x64\x69\x74\x65\x64");
+    let frame = masked(
+        true,
+        op::TEXT,
+        b"\xce\xba\xf4\x90\x80\x80\x65\x64\x69\x74\x65\x64",
+    );
     single.extend_from_slice(&frame);
     for input in [fragments, single] {
         for piece in [1, 3, 64] {

@@ -2,80 +2,49 @@
 //! code over in-memory streams, in-process.
 
 use std::cell::RefCell;
-use std::net::SocketAddr;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::sync::Arc;
 
-use embedded_io_async::{ErrorKind, ErrorType, Read, Write};
-use lluav_embedded::{Buffers, Connection, Echo};
+use lluav_embedded::policy::Policy;
+use lluav_embedded::testing::{Pipe, PipeError};
+use lluav_embedded::{Connection, Echo, Error, Limits};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 /// A valid upgrade request, for targets whose input is the frame stream.
 pub const UPGRADE: &[u8] = b"GET / HTTP/1.1\r\nHost: drone\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
 Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n";
 
-/// Hands out the input at most `piece` bytes per read, then end of stream;
-/// keeps what the adapter writes, up to a bound.
-struct Pieces<'a> {
-    input: &'a [u8],
-    piece: usize,
-    output: Vec<u8>,
-}
-
-impl ErrorType for Pieces<'_> {
-    type Error = ErrorKind;
-}
-
-impl Read for Pieces<'_> {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, ErrorKind> {
-        let n = buf.len().min(self.piece).min(self.input.len());
-        let (now, later) = self.input.split_at(n);
-        buf[..n].copy_from_slice(now);
-        self.input = later;
-        Ok(n)
-    }
-}
-
-impl Write for Pieces<'_> {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, ErrorKind> {
-        // The adapter's output is bounded by what it reads; this bound only
-        // keeps a runaway from going unnoticed.
-        assert!(
-            self.output.len() + buf.len() <= 1 << 24,
-            "the adapter writes without bound"
-        );
-        self.output.extend_from_slice(buf);
-        Ok(buf.len())
-    }
-
-    async fn flush(&mut self) -> Result<(), ErrorKind> {
-        Ok(())
-    }
-}
-
 /// Runs the embedded adapter (handshake, then the echo service) over
-/// `input` delivered in `piece`-byte reads, with small MCU-sized buffers.
-/// Returns what it wrote.
+/// `input` delivered in `piece`-byte pieces into a 512-byte receive ring,
+/// with small MCU-sized buffers (1 KiB messages and replies). Returns what
+/// it wrote.
 pub fn embedded(input: &[u8], piece: usize) -> Vec<u8> {
-    let mut io = Pieces {
-        input,
-        piece: piece.max(1),
-        output: Vec::new(),
+    // The adapter's output is bounded by what it reads; this bound only
+    // keeps a runaway from going unnoticed.
+    let mut io = Pipe::new(input, piece, 512, 1028, 1 << 24);
+    let mut message = [0u8; 1024];
+    let limits = Limits {
+        reply: 1024,
+        idle: None,
+        close: embassy_time::Duration::from_secs(1),
     };
-    let (mut raw, mut message, mut response, mut transmit) =
-        ([0u8; 512], [0u8; 1024], [0u8; 1024], [0u8; 1024]);
-    let buffers = Buffers {
-        raw: &mut raw,
-        message: &mut message,
-        response: &mut response,
-        transmit: &mut transmit,
+    // `drone` is the Host of UPGRADE; loopback names pass as well.
+    let policy = Policy {
+        address: IpAddr::V4(Ipv4Addr::LOCALHOST),
+        allowed_origins: &[],
+        allowed_hosts: &["drone"],
     };
-    let mut conn = Connection::new(buffers, None);
-    embassy_futures::block_on(async {
-        if conn.accept(&mut io).await.is_ok() {
-            let _ = conn.run(&mut io, &Echo).await;
-        }
+    let mut conn = Connection::new(&mut message, limits);
+    let ended = embassy_futures::block_on(async {
+        conn.accept(&mut io, &policy, |_| true).await?;
+        conn.run(&mut io, &Echo, &mut (), |_| {}).await
     });
-    io.output
+    assert_ne!(
+        ended,
+        Err(Error::Io(PipeError::OutputBound)),
+        "the adapter writes without bound"
+    );
+    io.output().to_vec()
 }
 
 thread_local! {

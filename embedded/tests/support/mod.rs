@@ -52,7 +52,10 @@ pub fn client_ip(i: usize) -> Ipv4Address {
 
 /// Copies every frame a device transmits to every other device (smoltcp
 /// drops frames for other MACs).
-async fn hub<const D: usize>(tx: &mut [ch::TxRunner<'static, MTU>; D], rx: &mut [ch::RxRunner<'static, MTU>; D]) {
+async fn hub<const D: usize>(
+    tx: &mut [ch::TxRunner<'static, MTU>; D],
+    rx: &mut [ch::RxRunner<'static, MTU>; D],
+) {
     loop {
         let (from, packet) = core::future::poll_fn(|cx| {
             for (i, t) in tx.iter_mut().enumerate() {
@@ -155,7 +158,11 @@ pub async fn join_all<F: Future<Output = ()>>(futures: impl IntoIterator<Item = 
     let mut futures: Vec<_> = futures.into_iter().map(Box::pin).collect();
     core::future::poll_fn(|cx| {
         futures.retain_mut(|f| f.as_mut().poll(cx).is_pending());
-        if futures.is_empty() { Poll::Ready(()) } else { Poll::Pending }
+        if futures.is_empty() {
+            Poll::Ready(())
+        } else {
+            Poll::Pending
+        }
     })
     .await;
 }
@@ -275,7 +282,10 @@ impl Client {
 
     /// Opens a TCP connection with `buffer`-byte socket buffers (attackers
     /// open many, and their buffers are leaked).
-    pub async fn try_tcp_with(stack: Stack<'static>, buffer: usize) -> Result<Client, embassy_net::tcp::ConnectError> {
+    pub async fn try_tcp_with(
+        stack: Stack<'static>,
+        buffer: usize,
+    ) -> Result<Client, embassy_net::tcp::ConnectError> {
         let rx = Box::leak(vec![0; buffer].into_boxed_slice());
         let tx = Box::leak(vec![0; buffer].into_boxed_slice());
         let mut socket = TcpSocket::new(stack, rx, tx);
@@ -305,7 +315,9 @@ impl Client {
     /// Sends bytes without waiting for them to be acknowledged; false if
     /// the connection is gone.
     pub async fn try_raw(&mut self, bytes: &[u8]) -> bool {
-        embedded_io_async::Write::write_all(&mut self.socket, bytes).await.is_ok()
+        embedded_io_async::Write::write_all(&mut self.socket, bytes)
+            .await
+            .is_ok()
     }
 
     /// Waits until the server ends the connection (close, reset or its
