@@ -16,9 +16,20 @@
 //! listens until one of them ends (the operator's own sessions are the
 //! capacity, not an attack).
 //!
-//! Evicting the oldest first means a swarm must open as many connections
-//! as there are slots before a legitimate newcomer, whose handshake and
-//! login take a few round trips, becomes the oldest.
+//! A connection younger than [`Config::reclaim_after`] is not evicted: a
+//! legitimate newcomer needs a few round trips to send its request and log
+//! in, and a swarm reconnecting faster than that would otherwise evict it
+//! before it could (oldest first only delays that by as many connections as
+//! there are slots). When every reclaimable slot is that young, the
+//! newcomer on the last listening slot is refused (reset) instead, so that
+//! the slot keeps listening; it may retry, and the swarm's connections age.
+//! And while the last slot is contested that way, a newcomer from an
+//! address that already holds a slot it has not logged in with is refused
+//! too: a swarm then holds one reclaimable slot per address, and each
+//! eviction makes room for an address that held none, such as the
+//! operator's. So under a swarm each slot changes hands at most once per
+//! `reclaim_after`, a newcomer that gets a slot keeps it for at least that
+//! long, and one slot always listens.
 //!
 //! # Per-address limits
 //!
@@ -96,6 +107,10 @@ impl Entry {
 pub enum Refusal {
     /// Its address already has as many handshakes in progress as allowed.
     TooManyHandshakes,
+    /// It arrived on the last listening slot while its address already
+    /// holds a slot that could be reclaimed, or while every such slot is
+    /// younger than [`Config::reclaim_after`].
+    Busy,
 }
 
 /// What an address did that gets logged (once a minute at most).
@@ -203,19 +218,36 @@ impl<const N: usize> Table<N> {
         if self.others(slot).any(|(_, e)| e.phase == Phase::Listening) {
             return Ok(None);
         }
-        let victim = self
-            .others(slot)
-            .filter(|(_, e)| e.reclaimable())
+        let mut reclaimable = self.others(slot).filter(|(_, e)| e.reclaimable()).peekable();
+        if reclaimable.peek().is_none() {
+            // Only admitted sessions besides: they are the capacity.
+            return Ok(None);
+        }
+        if self.count(slot, peer, |p| {
+            matches!(p, Phase::Handshake | Phase::Session { admitted: false })
+        }) > 0
+        {
+            // The last slot is contested: an address that already holds a
+            // slot it has not logged in with gets no second one.
+            self.set(slot, Entry::IDLE);
+            return Err(Refusal::Busy);
+        }
+        let victim = reclaimable
+            .filter(|(_, e)| e.since + config.reclaim_after <= now)
             .min_by_key(|(_, e)| e.since)
             .map(|(i, _)| i);
-        if let Some(victim) = victim {
-            // Evicted now, so that the next newcomer does not pick it again.
-            self.set(victim, Entry::IDLE);
-            if let Some(signal) = self.evict.get(victim) {
-                signal.signal(());
-            }
+        let Some(victim) = victim else {
+            // Everything reclaimable is too young to evict: the newcomer is
+            // refused instead, so that a slot keeps listening.
+            self.set(slot, Entry::IDLE);
+            return Err(Refusal::Busy);
+        };
+        // Evicted now, so that the next newcomer does not pick it again.
+        self.set(victim, Entry::IDLE);
+        if let Some(signal) = self.evict.get(victim) {
+            signal.signal(());
         }
-        Ok(victim)
+        Ok(Some(victim))
     }
 
     /// Whether `peer` may open one more session (checked when its upgrade
@@ -326,6 +358,7 @@ mod tests {
         Config {
             max_handshakes_per_address: 2,
             max_sessions_per_address: 2,
+            reclaim_after: Duration::from_secs(1),
             ..Config::new()
         }
     }
@@ -364,6 +397,23 @@ mod tests {
     }
 
     #[test]
+    fn connections_younger_than_the_grace_are_not_evicted() {
+        let t = Table::<2>::new();
+        let c = config();
+        (0..2).for_each(|i| t.listening(i));
+        assert_eq!(t.arrive(0, ip(1), &c, at(10)), Ok(None));
+        // Slot 0 is half a second old: the newcomer on the last slot is
+        // refused, so that slot 1 listens again...
+        assert_eq!(
+            t.arrive(1, ip(2), &c, Instant::from_millis(110_500)),
+            Err(Refusal::Busy)
+        );
+        // ...and a second later slot 0 is evicted for it.
+        t.listening(1);
+        assert_eq!(t.arrive(1, ip(2), &c, at(11)), Ok(Some(0)));
+    }
+
+    #[test]
     fn nothing_is_evicted_while_another_slot_listens_or_when_all_logged_in() {
         let t = Table::<2>::new();
         let c = config();
@@ -375,17 +425,31 @@ mod tests {
 
     #[test]
     fn handshakes_per_address_are_limited_at_arrival() {
-        let t = Table::<4>::new();
+        let t = Table::<5>::new();
         let c = config();
-        (0..4).for_each(|i| t.listening(i));
+        (0..5).for_each(|i| t.listening(i));
         assert_eq!(t.arrive(0, ip(1), &c, at(1)), Ok(None));
         assert_eq!(t.arrive(1, ip(1), &c, at(1)), Ok(None));
         assert_eq!(t.arrive(2, ip(1), &c, at(1)), Err(Refusal::TooManyHandshakes));
+        t.listening(2);
         assert_eq!(t.arrive(2, ip(2), &c, at(1)), Ok(None));
         // A handshake that became a session no longer counts.
         t.opened(0, true);
-        t.listening(3);
-        assert_eq!(t.arrive(3, ip(1), &c, at(2)), Ok(Some(1)));
+        assert_eq!(t.arrive(3, ip(1), &c, at(2)), Ok(None));
+    }
+
+    #[test]
+    fn the_contested_last_slot_goes_only_to_an_address_without_one() {
+        let t = Table::<3>::new();
+        let c = config();
+        (0..3).for_each(|i| t.listening(i));
+        t.arrive(0, ip(1), &c, at(1)).unwrap();
+        t.arrive(1, ip(2), &c, at(1)).unwrap();
+        // Address 1 already holds a reclaimable slot: no second one...
+        assert_eq!(t.arrive(2, ip(1), &c, at(5)), Err(Refusal::Busy));
+        // ...while address 3, which holds none, evicts the oldest.
+        t.listening(2);
+        assert_eq!(t.arrive(2, ip(3), &c, at(5)), Ok(Some(0)));
     }
 
     #[test]

@@ -89,6 +89,9 @@ pub struct Config {
     pub max_sessions_per_address: usize,
     /// Handshakes one IP address may have in progress at once.
     pub max_handshakes_per_address: usize,
+    /// How old a connection that has not logged in must be before a
+    /// newcomer may evict it (see [`admission`]).
+    pub reclaim_after: Duration,
     /// `Origin` values accepted besides the vehicle's own (`*`: any); see
     /// [`policy`].
     pub allowed_origins: &'static [&'static str],
@@ -99,7 +102,8 @@ pub struct Config {
 impl Config {
     /// Port [`PORT`], 3 s for the handshake, 10 s to log in, 5 min idle,
     /// 2 s to close, keep-alive every 30 s, 60 s TCP timeout, two sessions
-    /// and two handshakes per address, no extra origins or host names.
+    /// and two handshakes per address, eviction after 500 ms, no extra
+    /// origins or host names.
     pub const fn new() -> Self {
         Config {
             port: PORT,
@@ -111,6 +115,7 @@ impl Config {
             tcp_timeout: Some(Duration::from_secs(60)),
             max_sessions_per_address: 2,
             max_handshakes_per_address: 2,
+            reclaim_after: Duration::from_millis(500),
             allowed_origins: &[],
             allowed_hosts: &[],
         }

@@ -117,6 +117,8 @@ where
     F: FnOnce([Stack<'static>; CLIENTS]) -> Fut,
     Fut: Future<Output = ()>,
 {
+    // RUST_LOG=lluav_embedded=debug shows the adapter's decisions.
+    let _ = env_logger::builder().is_test(true).try_init();
     let (server, mut server_net, server_link) = stack(1, SERVER_IP, 1);
     let mut clients = Vec::new();
     let mut links = vec![server_link];
