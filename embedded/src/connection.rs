@@ -164,9 +164,7 @@ impl<'b> Connection<'b> {
         }
         let accept = accept_value(request.key);
         self.reader.start_frames();
-        write_all(io, SWITCHING).await?;
-        write_all(io, &accept).await?;
-        write_all(io, b"\r\n\r\n").await?;
+        write_all(io, &[SWITCHING, &accept, b"\r\n\r\n"]).await?;
         Ok(())
     }
 
@@ -287,8 +285,7 @@ impl<'b> Connection<'b> {
             Opcode::Ping => {
                 let mut header = [0u8; 2];
                 frame::write_header(&mut header, Opcode::Pong, payload.len());
-                write_all(io, &header).await?;
-                write_all(io, payload).await?;
+                write_all(io, &[&header, payload]).await?;
                 Ok(None)
             }
             Opcode::Close => {
@@ -302,7 +299,7 @@ impl<'b> Connection<'b> {
                     },
                 };
                 debug!("peer closed with {}", code);
-                write_all(io, &close_frame(code)).await?;
+                write_all(io, &[&close_frame(code)]).await?;
                 Ok(Some(code))
             }
             _ => Ok(None),
@@ -355,12 +352,12 @@ fn close_frame(code: u16) -> [u8; 4] {
 
 /// Sends a close frame; returns the code for the caller to report.
 async fn send_close<T: Transport>(io: &mut T, code: CloseCode) -> Result<u16, Error<T::Error>> {
-    write_all(io, &close_frame(code.code())).await?;
+    write_all(io, &[&close_frame(code.code())]).await?;
     Ok(code.code())
 }
 
 async fn reject<T: Transport>(io: &mut T, why: Rejection) -> Result<(), Error<T::Error>> {
-    write_all(io, why.answer()).await?;
+    write_all(io, &[why.answer()]).await?;
     io.flush().await?;
     Err(Error::Rejected(why))
 }

@@ -19,7 +19,7 @@
 //! `ws`, 443 for `https` and `wss`), and so has a `Host` without one (80:
 //! this adapter speaks plain `ws`).
 
-use core::net::{IpAddr, Ipv4Addr};
+use core::net::{IpAddr, Ipv4Addr, Ipv6Addr};
 
 use crate::handshake::{Rejection, Request};
 
@@ -92,32 +92,54 @@ impl Policy<'_> {
 /// `name[:port]` or `[v6][:port]`: the name (brackets kept) and the port,
 /// or `None` when the port is not a number or the name is empty.
 fn split_port(authority: &str) -> Option<(&str, Option<u16>)> {
-    let (name, port) = if authority.starts_with('[') {
-        let end = authority.find(']')? + 1;
-        let (name, rest) = authority.split_at_checked(end)?;
-        match rest {
-            "" => (name, None),
-            _ => (name, Some(rest.strip_prefix(':')?)),
-        }
-    } else {
-        match authority.split_once(':') {
-            Some((name, port)) => (name, Some(port)),
-            None => (authority, None),
-        }
+    // An IPv6 literal's colons are inside its brackets.
+    let after = match authority.find(']') {
+        Some(end) if authority.starts_with('[') => end + 1,
+        _ => 0,
     };
-    let port = match port {
-        Some(p) if !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()) => Some(p.parse().ok()?),
-        Some(_) => return None,
-        None => None,
+    let (name, port) = match authority.get(after..)?.find(':') {
+        Some(colon) => {
+            let (name, rest) = authority.split_at_checked(after + colon)?;
+            (name, Some(number(rest.get(1..)?)?))
+        }
+        None => (authority, None),
     };
+    if after > 0 && name.len() != after {
+        return None;
+    }
     (!name.is_empty()).then_some((name, port))
 }
 
-/// An IP literal as it appears in a `Host` (IPv6 in brackets).
+/// A decimal number of 1 to 5 digits that fits a `u16`.
+fn number(digits: &str) -> Option<u16> {
+    if digits.is_empty() || digits.len() > 5 {
+        return None;
+    }
+    let value = digits.bytes().try_fold(0u32, |acc, b| {
+        b.is_ascii_digit().then(|| acc * 10 + u32::from(b - b'0'))
+    })?;
+    u16::try_from(value).ok()
+}
+
+/// An IP literal as it appears in a `Host`: dotted-quad IPv4 (no leading
+/// zeros), or the IPv6 loopback `[::1]` (the adapter speaks IPv4 only, so
+/// no other IPv6 address can be its own).
 fn parse_ip(name: &str) -> Option<IpAddr> {
-    match name.strip_prefix('[').and_then(|n| n.strip_suffix(']')) {
-        Some(v6) => v6.parse().ok().map(IpAddr::V6),
-        None => name.parse::<Ipv4Addr>().ok().map(IpAddr::V4),
+    if name == "[::1]" {
+        return Some(IpAddr::V6(Ipv6Addr::LOCALHOST));
+    }
+    let mut octets = [0u8; 4];
+    let mut parts = name.split('.');
+    for octet in &mut octets {
+        let part = parts.next()?;
+        if part.len() > 1 && part.starts_with('0') {
+            return None;
+        }
+        *octet = u8::try_from(number(part)?).ok()?;
+    }
+    match parts.next() {
+        None => Some(IpAddr::V4(Ipv4Addr::from(octets))),
+        Some(_) => None,
     }
 }
 
@@ -186,6 +208,28 @@ mod tests {
             p.check(&request("evil.example", None)),
             Err(Rejection::ForeignHost)
         );
+    }
+
+    #[test]
+    fn ip_literals_are_read_strictly() {
+        assert_eq!(parse_ip("10.0.0.2"), Some(IpAddr::V4(Ipv4Addr::new(10, 0, 0, 2))));
+        for bad in [
+            "10.0.0",
+            "10.0.0.2.1",
+            "10.0.0.256",
+            "10.0.0.02",
+            "10.0.0.+2",
+            "10..0.2",
+            "",
+        ] {
+            assert_eq!(parse_ip(bad), None, "{bad}");
+        }
+        assert_eq!(split_port("[::1]:53001"), Some(("[::1]", Some(53001))));
+        assert_eq!(split_port("[::1]"), Some(("[::1]", None)));
+        assert_eq!(split_port("[::1]x"), None);
+        assert_eq!(split_port("host:"), None);
+        assert_eq!(split_port(":80"), None);
+        assert_eq!(split_port("host:65536"), None);
     }
 
     #[test]

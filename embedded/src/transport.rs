@@ -80,20 +80,23 @@ impl Transport for TcpSocket<'_> {
     }
 }
 
-/// Writes all of `bytes`, in as many pieces as the transmit buffer's free
-/// runs need.
-pub(crate) async fn write_all<T: Transport>(io: &mut T, mut bytes: &[u8]) -> Result<(), T::Error> {
-    while !bytes.is_empty() {
-        let n = io
-            .write_with(|room| {
-                let n = room.len().min(bytes.len());
-                if let (Some(dst), Some(src)) = (room.get_mut(..n), bytes.get(..n)) {
-                    dst.copy_from_slice(src);
-                }
-                (n, n)
-            })
-            .await?;
-        bytes = bytes.get(n..).unwrap_or(&[]);
+/// Writes all of `parts`, one after the other, in as many pieces as the
+/// transmit buffer's free runs need.
+pub(crate) async fn write_all<T: Transport>(io: &mut T, parts: &[&[u8]]) -> Result<(), T::Error> {
+    for part in parts {
+        let mut bytes = *part;
+        while !bytes.is_empty() {
+            let n = io
+                .write_with(|room| {
+                    let n = room.len().min(bytes.len());
+                    if let (Some(dst), Some(src)) = (room.get_mut(..n), bytes.get(..n)) {
+                        dst.copy_from_slice(src);
+                    }
+                    (n, n)
+                })
+                .await?;
+            bytes = bytes.get(n..).unwrap_or(&[]);
+        }
     }
     Ok(())
 }
