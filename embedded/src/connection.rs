@@ -40,7 +40,7 @@
 //!   only one of them at a time).
 
 use embassy_time::{Duration, Instant, with_deadline, with_timeout};
-use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY, Outcome};
+use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY, Outcome, Ticket};
 
 use crate::accept::accept_value;
 use crate::frame::{self, Opcode};
@@ -102,6 +102,8 @@ enum Sent {
     Reply,
     ReplyThenClose(CloseCode),
     Close(CloseCode),
+    /// Nothing written: ask again once the service says the ticket is ready.
+    Pending(Ticket),
 }
 
 /// One WebSocket connection: [`Connection::accept`] the upgrade, then
@@ -253,16 +255,31 @@ impl<'b> Connection<'b> {
         event: Event,
     ) -> Result<(Option<u16>, bool), Error<T::Error>> {
         let reply = self.limits.reply;
-        if !transport::reserve(io, frame::header_len(reply) + reply).await? {
-            return Err(Error::Buffers);
-        }
         let message = self.reader.message(event);
-        let mut handler = service.handler().await;
-        let sent = io
-            .write_with(|room| write_reply(room, reply, |out| handler.handle(session, message, out)))
-            .await?;
-        let now = handler.admitted(session);
-        drop(handler);
+        let mut waiting = None;
+        let (sent, now) = loop {
+            if !transport::reserve(io, frame::header_len(reply) + reply).await? {
+                return Err(Error::Buffers);
+            }
+            let mut handler = service.handler().await;
+            let sent = io
+                .write_with(|room| {
+                    write_reply(room, reply, |out| match waiting {
+                        None => handler.handle(session, message, out),
+                        Some(_) => handler.resume(session, out),
+                    })
+                })
+                .await?;
+            let now = handler.admitted(session);
+            drop(handler);
+            match sent {
+                Sent::Pending(ticket) => {
+                    waiting = Some(ticket);
+                    service.ready(ticket).await;
+                }
+                sent => break (sent, now),
+            }
+        };
         let code = match (sent, event) {
             (Sent::Reply, Event::Message) => return Ok((None, now)),
             // The rest of that message is unread: the connection cannot go
@@ -270,6 +287,7 @@ impl<'b> Connection<'b> {
             (Sent::Reply, Event::InvalidText) => CloseCode::InvalidPayload,
             (Sent::Reply, _) => CloseCode::TooBig,
             (Sent::ReplyThenClose(code) | Sent::Close(code), _) => code,
+            (Sent::Pending(_), _) => CloseCode::InternalError,
         };
         Ok((Some(send_close(io, code).await?), now))
     }
@@ -324,6 +342,7 @@ fn write_reply(
     let start = body.as_ptr();
     let (len, sent) = match handle(body) {
         Outcome::Close(code) => return (0, Sent::Close(code)),
+        Outcome::Pending(ticket, _) => return (0, Sent::Pending(ticket)),
         // A reply must be written where the handler was asked to write it.
         Outcome::Reply(r) if core::ptr::eq(r.as_ptr(), start) => (r.len(), Sent::Reply),
         Outcome::ReplyThenClose(r, code) if core::ptr::eq(r.as_ptr(), start) => {

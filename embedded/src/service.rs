@@ -4,7 +4,12 @@ use core::net::IpAddr;
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::{Mutex, MutexGuard};
-use lluav_core::{Backend, Clock, CloseCode, Message, Outcome, Server, Session};
+use embassy_time::{Duration, Timer};
+use lluav_core::{Backend, Clock, CloseCode, Message, Outcome, Server, Session, Ticket};
+
+/// How often [`SharedServer`] asks a backend again about a command it left
+/// pending.
+pub const PENDING_POLL: Duration = Duration::from_millis(5);
 
 /// Handles the complete messages of every connection.
 ///
@@ -33,6 +38,11 @@ pub trait Service {
     /// Waits for exclusive access to handle a message.
     async fn handler(&self) -> Self::Handler<'_>;
 
+    /// Waits (with nothing locked) until it is time to ask again about
+    /// `ticket`, which [`Handler::handle`] or [`Handler::resume`] answered
+    /// [`Outcome::Pending`].
+    async fn ready(&self, ticket: Ticket);
+
     /// The connection of `session` has ended.
     async fn close(&self, session: Self::Session);
 }
@@ -51,6 +61,11 @@ pub trait Handler {
         out: &'o mut [u8],
     ) -> Outcome<'o>;
 
+    /// Answers the message `session` is waiting for, once
+    /// [`Service::ready`] returned; like [`Handler::handle`], and it may be
+    /// [`Outcome::Pending`] again.
+    fn resume<'o>(&mut self, session: &mut Self::Session, out: &'o mut [u8]) -> Outcome<'o>;
+
     /// Whether `session` may run commands now: it has logged in, or no
     /// password is required. A connection whose session is not admitted
     /// is the first to give up its slot, and is closed at the login
@@ -63,7 +78,11 @@ pub trait Handler {
 /// The lock is held only while one message is handled (a synchronous
 /// [`Server::handle`] call writing into a transmit buffer that already has
 /// room), never while waiting for the network, so a slow client never
-/// delays the others.
+/// delays the others. A command the backend leaves pending is asked about
+/// again ([`Server::resume`], which calls `Backend::finish`, which may
+/// answer pending again) every [`PENDING_POLL`], with the lock released,
+/// so other sessions go on meanwhile: a board's backend needs no way to
+/// wake the adapter, and one poll is a few hundred instructions.
 pub struct SharedServer<M: RawMutex, B, C> {
     server: Mutex<M, Server<B, C>>,
 }
@@ -92,6 +111,10 @@ impl<M: RawMutex, B: Backend, C: Clock> Handler for Locked<'_, M, B, C> {
         self.0.handle(session, message, out)
     }
 
+    fn resume<'o>(&mut self, session: &mut Session, out: &'o mut [u8]) -> Outcome<'o> {
+        self.0.resume(session, out)
+    }
+
     fn admitted(&self, session: &Session) -> bool {
         session.logged_in() || !self.0.auth().password_required()
     }
@@ -104,19 +127,25 @@ impl<M: RawMutex, B: Backend, C: Clock> Service for SharedServer<M, B, C> {
     where
         Self: 'a;
 
-    async fn open(&self, _peer: Option<IpAddr>) -> Session {
-        Session::new()
+    async fn open(&self, peer: Option<IpAddr>) -> Session {
+        self.server.lock().await.open(peer)
     }
 
     async fn handler(&self) -> Locked<'_, M, B, C> {
         Locked(self.server.lock().await)
     }
 
-    async fn close(&self, _session: Session) {}
+    async fn ready(&self, _ticket: Ticket) {
+        Timer::after(PENDING_POLL).await;
+    }
+
+    async fn close(&self, session: Session) {
+        self.server.lock().await.close(&session);
+    }
 }
 
 /// Echoes every text message back; the close policy is the protocol's
-/// (binary 1003, invalid UTF-8 1007, oversized 1009).
+/// ([`Message::text`]: binary 1003, invalid UTF-8 1007, oversized 1009).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Echo;
 
@@ -124,23 +153,23 @@ impl Handler for Echo {
     type Session = ();
 
     fn handle<'o>(&mut self, _: &mut (), message: Message<'_>, out: &'o mut [u8]) -> Outcome<'o> {
-        match message {
-            Message::Text(bytes) => {
-                let Ok(text) = core::str::from_utf8(bytes) else {
-                    return Outcome::Close(CloseCode::InvalidPayload);
-                };
-                let Some(dst) = out.get_mut(..text.len()) else {
-                    return Outcome::Close(CloseCode::TooBig);
-                };
-                dst.copy_from_slice(text.as_bytes());
-                match core::str::from_utf8(dst) {
-                    Ok(echo) => Outcome::Reply(echo),
-                    Err(_) => Outcome::Close(CloseCode::InternalError),
-                }
-            }
-            Message::Binary(_) => Outcome::Close(CloseCode::Unsupported),
-            Message::Oversized => Outcome::Close(CloseCode::TooBig),
+        let text = match message.text() {
+            Ok(text) => text,
+            Err(code) => return Outcome::Close(code),
+        };
+        let Some(dst) = out.get_mut(..text.len()) else {
+            return Outcome::Close(CloseCode::TooBig);
+        };
+        dst.copy_from_slice(text.as_bytes());
+        match core::str::from_utf8(dst) {
+            Ok(echo) => Outcome::Reply(echo),
+            Err(_) => Outcome::Close(CloseCode::InternalError),
         }
+    }
+
+    /// Never called: the echo never pends.
+    fn resume<'o>(&mut self, _: &mut (), _: &'o mut [u8]) -> Outcome<'o> {
+        Outcome::Close(CloseCode::InternalError)
     }
 
     fn admitted(&self, _: &()) -> bool {
@@ -157,6 +186,8 @@ impl Service for Echo {
     async fn handler(&self) -> Echo {
         Echo
     }
+
+    async fn ready(&self, _ticket: Ticket) {}
 
     async fn close(&self, _session: ()) {}
 }

@@ -3,6 +3,7 @@
 
 mod support;
 
+use embassy_futures::select::{Either, select};
 use embassy_net::tcp::ConnectError;
 use embassy_time::Timer;
 use lluav_embedded::Config;
@@ -48,6 +49,35 @@ fn armed_vehicle_refuses_reboot_but_lands() {
         );
         assert_eq!(c.call("land").await["ret"], 0);
         assert_eq!(c.call("state").await["state"]["armed"], false);
+    });
+}
+
+/// `takeoff` in the test vehicle waits for its autopilot (it answers
+/// pending for about 100 ms): its answer comes once the backend finishes,
+/// and another session is served meanwhile.
+#[test]
+fn a_pending_command_is_answered_when_the_backend_finishes_and_others_go_on() {
+    with_world(protocol_server(), Config::new(), |[a, b, _, _]| async move {
+        let mut pilot = Client::connect(a).await;
+        let mut watcher = Client::connect(b).await;
+        for c in [&mut pilot, &mut watcher] {
+            assert_eq!(c.call(&format!("login {PASSWORD}")).await["ret"], 0);
+        }
+        pilot.send("takeoff").await;
+        let first = select(pilot.recv(), watcher.call("state")).await;
+        let Either::Second(state) = first else {
+            panic!("the pending takeoff was answered before another session's state");
+        };
+        assert_eq!(state["state"]["armed"], false);
+        let r = pilot.recv().await.text();
+        assert_eq!(
+            (r["ret"].as_i64(), r["armed"].as_bool()),
+            (Some(0), Some(true)),
+            "{r}"
+        );
+        assert_eq!(watcher.call("state").await["state"]["armed"], true);
+        // The pilot's session goes on after its pending command.
+        assert_eq!(pilot.call("land").await["ret"], 0);
     });
 }
 

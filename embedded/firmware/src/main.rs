@@ -55,9 +55,14 @@ const MAC: [u8; 6] = [0x02, 0x4c, 0x4c, 0x55, 0x41, 0x56];
 type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
 type Shared = SharedServer<CriticalSectionRawMutex, Board<Nucleo>, Uptime>;
 
+/// Ethernet DMA buffers: two for sending (a reply of up to 2 KiB is two
+/// segments; smoltcp waits for a free one) and four for receiving (bursts
+/// from several clients), 1.5 KB each.
+type Packets = PacketQueue<2, 4>;
+
 // Large statics are initialised in place: built by value in a task they
 // would sit on the stack first (a 19 KB frame was seen for PacketQueue).
-static PACKETS: StaticCell<PacketQueue<4, 4>> = StaticCell::new();
+static PACKETS: StaticCell<Packets> = StaticCell::new();
 static SLOTS: ConstStaticCell<[SessionSlot; SESSIONS]> =
     ConstStaticCell::new([const { SessionSlot::new() }; SESSIONS]);
 /// One socket per session and one for DHCP.
@@ -141,7 +146,7 @@ async fn main(spawner: Spawner) {
     let mut seed = [0; 8];
     rng.fill_bytes(&mut seed);
 
-    let packets: &'static mut MaybeUninit<PacketQueue<4, 4>> = PACKETS.uninit();
+    let packets: &'static mut MaybeUninit<Packets> = PACKETS.uninit();
     PacketQueue::init(packets);
     // SAFETY: PacketQueue::init initialises the whole queue in place.
     let packets = unsafe { packets.assume_init_mut() };

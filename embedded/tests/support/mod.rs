@@ -18,7 +18,9 @@ use embassy_net::{Config as NetConfig, Ipv4Address, Ipv4Cidr, Stack, StackResour
 use embassy_net_driver_channel::{self as ch, driver::HardwareAddress, driver::LinkState};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_time::{Duration, Timer, with_timeout};
-use lluav_core::{Args, Auth, Backend, Command, CommandId, Context as Ctx, Failure, Fields, Server, Step};
+use lluav_core::{
+    Args, Auth, Backend, Command, CommandId, Context as Ctx, Failure, Fields, Server, Step, Ticket,
+};
 use lluav_embedded::{Config, Service, SharedServer, Slot, serve};
 
 pub const SERVER_IP: Ipv4Address = Ipv4Address::new(10, 53, 0, 1);
@@ -189,10 +191,18 @@ where
 }
 
 /// A vehicle that arms on `takeoff` and disarms on `land`/`disarm`.
+/// `takeoff` waits for its autopilot like a real one: it answers pending,
+/// and is still pending the first [`TAKEOFF_POLLS`] times it is asked again.
 #[derive(Default)]
 pub struct Vehicle {
     armed: bool,
+    /// How many more times a pending takeoff answers pending.
+    takeoff_polls: u32,
 }
+
+/// How often a pending `takeoff` is still pending when asked again (at the
+/// adapter's 5 ms poll, about 100 ms).
+pub const TAKEOFF_POLLS: u32 = 20;
 
 impl Backend for Vehicle {
     fn armed(&self) -> bool {
@@ -201,7 +211,10 @@ impl Backend for Vehicle {
 
     fn execute(&mut self, cmd: &Command<'_>, ctx: &Ctx, out: &mut Fields<'_>) -> Result<Step, Failure> {
         match (cmd.id(), cmd.args()) {
-            (CommandId::Takeoff, _) => self.armed = true,
+            (CommandId::Takeoff, _) => {
+                self.takeoff_polls = TAKEOFF_POLLS;
+                return Ok(Step::Pending(Ticket(7)));
+            }
             (CommandId::Land | CommandId::Disarm, _) => self.armed = false,
             (CommandId::State, _) => {
                 let armed = self.armed;
@@ -216,6 +229,17 @@ impl Backend for Vehicle {
             }
             _ => return Err(Failure::unsupported("not in the test vehicle")),
         }
+        Ok(Step::Done)
+    }
+
+    fn finish(&mut self, ticket: Ticket, _: &Ctx, out: &mut Fields<'_>) -> Result<Step, Failure> {
+        assert_eq!(ticket, Ticket(7), "only takeoff pends");
+        if self.takeoff_polls > 0 {
+            self.takeoff_polls -= 1;
+            return Ok(Step::Pending(ticket));
+        }
+        self.armed = true;
+        out.bool("armed", true);
         Ok(Step::Done)
     }
 }
