@@ -175,10 +175,10 @@ impl<'b> Reader<'b> {
 
     /// Parses a header from the carried bytes and `rest`.
     fn header(&mut self, rest: &[u8]) -> Result<Head, CloseCode> {
-        if self.carried == 0 {
-            if let Some(header) = frame::parse_header(rest)? {
-                return Ok(Head::Done(header, header.header_len));
-            }
+        if self.carried == 0
+            && let Some(header) = frame::parse_header(rest)?
+        {
+            return Ok(Head::Done(header, header.header_len));
         }
         // Too few bytes for a header (at most 13): carry them.
         let take = (MAX_HEADER - self.carried).min(rest.len());
