@@ -12,8 +12,10 @@
 //! # Where the bytes go
 //!
 //! A connection owns one buffer, the message buffer (its size is the frame
-//! limit; it first holds the upgrade request's head), and about 200 bytes
-//! of state. Everything else is the socket's:
+//! limit; it first holds the upgrade request's head), and about 250 bytes
+//! of state (a 14-byte carry for a frame header cut by the end of the
+//! received bytes, 125 bytes for a control frame's payload). Everything
+//! else is the socket's:
 //!
 //! - **In**: frame headers are parsed and payloads unmasked straight out of
 //!   the socket's receive buffer ([`Transport::read_with`]) into the message

@@ -2,11 +2,11 @@
 //! buffers it reads and writes in place, as embassy-net's [`TcpSocket`]
 //! offers with `read_with` and `write_with`.
 //!
-//! The connection never copies bytes through a buffer of its own on the
-//! way in or out: frames are parsed and unmasked straight out of the
-//! socket's receive buffer, and replies are written by the protocol core
-//! straight into the socket's transmit buffer (see [`crate::connection`]
-//! for what that costs and what it cannot do).
+//! The connection keeps no staging buffer of its own: frames are parsed
+//! and unmasked straight out of the socket's receive buffer into the
+//! message buffer (the one copy a message takes), and replies are written
+//! by the protocol core straight into the socket's transmit buffer (see
+//! [`crate::connection`] for why, and what it costs).
 
 use embassy_net::tcp::{Error as TcpError, State, TcpSocket};
 
