@@ -68,13 +68,16 @@ pub fn host(request: &[u8], frames: &[u8]) -> Vec<u8> {
         rt.borrow().block_on(async {
             let (client, server) = tokio::io::duplex(1 << 16);
             let (_stop_tx, stop) = tokio::sync::watch::channel(false);
-            let limits = lluav_host::ws::Limits {
-                max_message: 4096,
+            let config = lluav_host::net::Config {
+                limits: lluav_host::net::Limits {
+                    max_message: 4096,
+                    ..Default::default()
+                },
                 ..Default::default()
             };
-            let handler = Arc::new(lluav_host::ws::Echo);
+            let handler = Arc::new(lluav_host::net::Echo);
             let peer: SocketAddr = ([127, 0, 0, 1], 1).into();
-            let serve = lluav_host::ws::connection(server, peer, &*handler, limits, stop);
+            let serve = lluav_host::net::serve_stream(server, peer, peer.ip(), handler, config, stop);
             let talk = async {
                 let (mut rd, mut wr) = tokio::io::split(client);
                 let mut out = Vec::new();

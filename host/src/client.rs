@@ -7,6 +7,10 @@
 //! common commands have typed helpers. Replies are [`Response`]s: `ret`,
 //! `cmd`, `ts` and the command-specific fields.
 //!
+//! `ws://` and `wss://` URLs are served; for `wss://` the server's
+//! certificate is checked against the system's roots, or against the CA
+//! file of [`ConnectOptions::ca_file`] (a self-signed certificate).
+//!
 //! ```no_run
 //! # async fn demo() -> Result<(), lluav_host::client::ClientError> {
 //! use lluav_host::client::Client;
@@ -17,13 +21,24 @@
 //! # Ok(()) }
 //! ```
 
+use std::path::PathBuf;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+
 use futures_util::{SinkExt, StreamExt};
 use lluav_core::{ArgError, Args, Command, CommandId, ParseError, Pose};
+use rustls::pki_types::pem::PemObject;
+use rustls::pki_types::{CertificateDer, ServerName};
 use serde::Deserialize;
 use serde_json::{Map, Value};
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::TcpStream;
+use tokio_rustls::TlsConnector;
+use tokio_rustls::client::TlsStream;
+use tokio_tungstenite::WebSocketStream;
 use tokio_tungstenite::tungstenite::Message as WsMessage;
-use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 
 /// The protocol's default server address.
 pub const DEFAULT_URL: &str = "ws://127.0.0.1:53001";
@@ -89,6 +104,17 @@ pub enum ClientError {
         /// Why.
         source: Box<tokio_tungstenite::tungstenite::Error>,
     },
+    /// The CA file for `wss://` cannot be used.
+    #[error("cannot use the CA file {path}: {why}")]
+    CaFile {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        why: String,
+    },
+    /// TLS cannot be set up with this machine's crypto provider.
+    #[error("TLS setup failed: {0}")]
+    Tls(String),
     /// The connection failed while sending or receiving.
     #[error("connection lost: {0}")]
     Transport(Box<tokio_tungstenite::tungstenite::Error>),
@@ -131,23 +157,153 @@ fn command_name(r: &Response) -> &'static str {
     r.command().map_or("command", CommandId::name)
 }
 
+/// How a [`Client`] connects.
+#[derive(Clone, Debug, Default)]
+pub struct ConnectOptions {
+    /// A PEM file of the certificate authorities trusted for `wss://`
+    /// instead of the system's: the server's own certificate, when it is
+    /// self-signed.
+    pub ca_file: Option<PathBuf>,
+}
+
+/// The byte stream under a client's WebSocket: plain TCP for `ws://`,
+/// TLS for `wss://`.
+pub enum Transport {
+    /// `ws://`.
+    Plain(TcpStream),
+    /// `wss://`.
+    Tls(Box<TlsStream<TcpStream>>),
+}
+
+impl AsyncRead for Transport {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        match self.get_mut() {
+            Transport::Plain(s) => Pin::new(s).poll_read(cx, buf),
+            Transport::Tls(s) => Pin::new(s.as_mut()).poll_read(cx, buf),
+        }
+    }
+}
+
+impl AsyncWrite for Transport {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
+        match self.get_mut() {
+            Transport::Plain(s) => Pin::new(s).poll_write(cx, buf),
+            Transport::Tls(s) => Pin::new(s.as_mut()).poll_write(cx, buf),
+        }
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        match self.get_mut() {
+            Transport::Plain(s) => Pin::new(s).poll_flush(cx),
+            Transport::Tls(s) => Pin::new(s.as_mut()).poll_flush(cx),
+        }
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        match self.get_mut() {
+            Transport::Plain(s) => Pin::new(s).poll_shutdown(cx),
+            Transport::Tls(s) => Pin::new(s.as_mut()).poll_shutdown(cx),
+        }
+    }
+}
+
+/// The TLS client settings for `options`: its CA file, else the system's
+/// root certificates.
+fn tls_connector(options: &ConnectOptions) -> Result<TlsConnector, ClientError> {
+    let mut roots = rustls::RootCertStore::empty();
+    match &options.ca_file {
+        Some(path) => {
+            let bad = |why: String| ClientError::CaFile {
+                path: path.clone(),
+                why,
+            };
+            let certs = CertificateDer::pem_file_iter(path)
+                .and_then(|certs| certs.collect::<Result<Vec<_>, _>>())
+                .map_err(|e| bad(e.to_string()))?;
+            if certs.is_empty() {
+                return Err(bad("no CERTIFICATE block in the file".into()));
+            }
+            for cert in certs {
+                roots.add(cert).map_err(|e| bad(e.to_string()))?;
+            }
+        }
+        None => {
+            // Certificates the system store holds but rustls cannot parse
+            // are skipped, as every other client does.
+            let _ = roots.add_parsable_certificates(rustls_native_certs::load_native_certs().certs);
+        }
+    }
+    let config = rustls::ClientConfig::builder_with_provider(crate::net::tls::provider())
+        .with_safe_default_protocol_versions()
+        .map_err(|e| ClientError::Tls(e.to_string()))?
+        .with_root_certificates(roots)
+        .with_no_client_auth();
+    Ok(TlsConnector::from(Arc::new(config)))
+}
+
+/// Opens a WebSocket to `url` (`ws://` or `wss://`); the building block of
+/// [`Client::connect_with`], for clients that speak raw frames.
+pub async fn open(url: &str, options: &ConnectOptions) -> Result<WebSocketStream<Transport>, ClientError> {
+    use tokio_tungstenite::tungstenite::Error as WsError;
+    let failed = |e: WsError| ClientError::Connect {
+        url: url.to_owned(),
+        source: Box::new(e),
+    };
+    let io = |e: std::io::Error| failed(WsError::Io(e));
+    let request = url.into_client_request().map_err(failed)?;
+    let uri = request.uri();
+    let tls = match uri.scheme_str() {
+        Some("ws") => false,
+        Some("wss") => true,
+        _ => {
+            return Err(failed(WsError::Url(
+                tokio_tungstenite::tungstenite::error::UrlError::UnsupportedUrlScheme,
+            )));
+        }
+    };
+    let host = uri.host().unwrap_or_default();
+    let host = host
+        .strip_prefix('[')
+        .and_then(|h| h.strip_suffix(']'))
+        .unwrap_or(host)
+        .to_owned();
+    let port = uri.port_u16().unwrap_or(if tls { 443 } else { 80 });
+    let tcp = TcpStream::connect((host.as_str(), port)).await.map_err(io)?;
+    tcp.set_nodelay(true).map_err(io)?;
+    let transport = if tls {
+        let name = ServerName::try_from(host).map_err(|e| io(std::io::Error::other(e)))?;
+        let stream = tls_connector(options)?.connect(name, tcp).await.map_err(io)?;
+        Transport::Tls(Box::new(stream))
+    } else {
+        Transport::Plain(tcp)
+    };
+    let (ws, _) = tokio_tungstenite::client_async(request, transport)
+        .await
+        .map_err(failed)?;
+    Ok(ws)
+}
+
 /// A connection to one server; requests are answered in order.
 pub struct Client {
-    ws: WebSocketStream<MaybeTlsStream<TcpStream>>,
+    ws: WebSocketStream<Transport>,
     frame: String,
 }
 
 impl Client {
-    /// Connects to `url` (`ws://host:port`).
+    /// Connects to `url` (`ws://host:port`, or `wss://` checked against
+    /// the system's root certificates).
     pub async fn connect(url: &str) -> Result<Client, ClientError> {
-        let (ws, _) = tokio_tungstenite::connect_async(url)
-            .await
-            .map_err(|e| ClientError::Connect {
-                url: url.to_owned(),
-                source: Box::new(e),
-            })?;
+        Client::connect_with(url, &ConnectOptions::default()).await
+    }
+
+    /// Connects to `url` with `options` (a CA file for `wss://`).
+    pub async fn connect_with(url: &str, options: &ConnectOptions) -> Result<Client, ClientError> {
         Ok(Client {
-            ws,
+            ws: open(url, options).await?,
             frame: String::new(),
         })
     }

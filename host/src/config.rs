@@ -12,7 +12,7 @@ use std::time::Duration;
 use clap::Parser;
 use serde::Deserialize;
 
-use crate::ws::Limits;
+use crate::net::{Limits, Policy};
 
 /// The default address: loopback only, the protocol's port.
 pub const DEFAULT_BIND: SocketAddr = SocketAddr::new(std::net::IpAddr::V4(Ipv4Addr::LOCALHOST), 53001);
@@ -54,9 +54,42 @@ pub struct Cli {
     /// Most connections served at once. [default: 256]
     #[arg(long, value_name = "N")]
     pub max_connections: Option<usize>,
+    /// Most sessions from one client address (loopback included). [default: 8]
+    #[arg(long, value_name = "N")]
+    pub max_sessions_per_ip: Option<usize>,
+    /// Most HTTP upgrades in progress at once; beyond it the oldest is dropped. [default: 128]
+    #[arg(long, value_name = "N")]
+    pub max_handshakes: Option<usize>,
+    /// Most HTTP upgrades in progress from one client address. [default: 8]
+    #[arg(long, value_name = "N")]
+    pub max_handshakes_per_ip: Option<usize>,
+    /// Seconds from accept to a complete upgrade request (TLS included). [default: 5]
+    #[arg(long, value_name = "SECS")]
+    pub handshake_timeout: Option<u64>,
+    /// With a password, seconds a session may stay without logging in. [default: 10]
+    #[arg(long, value_name = "SECS")]
+    pub login_timeout: Option<u64>,
     /// Seconds of silence after which a connection is closed. [default: 300]
     #[arg(long, value_name = "SECS")]
     pub idle_timeout: Option<u64>,
+    /// Seconds an address is locked out after 5 wrong passwords in a row;
+    /// doubles with each further lockout, up to 15 minutes. [default: 30]
+    #[arg(long, value_name = "SECS")]
+    pub login_lockout: Option<u64>,
+    /// A web origin allowed to open sessions besides pages served by this
+    /// server (e.g. https://gcs.example:8443); `*` allows any. Repeatable.
+    #[arg(long, value_name = "URL")]
+    pub allow_origin: Vec<String>,
+    /// A host name clients may reach this server by, besides its address
+    /// (and localhost on loopback), e.g. drone.local. Repeatable.
+    #[arg(long, value_name = "NAME")]
+    pub allow_host: Vec<String>,
+    /// Serve wss:// with this PEM certificate chain (needs --tls-key).
+    #[arg(long, value_name = "FILE", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// The PEM private key of --tls-cert.
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
     /// Serve a WebSocket echo instead of the protocol, through the same
     /// connection code: for the Autobahn|Testsuite only.
     #[arg(long, hide = true)]
@@ -83,8 +116,28 @@ pub struct FileConfig {
     pub max_message: Option<usize>,
     /// As `--max-connections`.
     pub max_connections: Option<usize>,
+    /// As `--max-sessions-per-ip`.
+    pub max_sessions_per_ip: Option<usize>,
+    /// As `--max-handshakes`.
+    pub max_handshakes: Option<usize>,
+    /// As `--max-handshakes-per-ip`.
+    pub max_handshakes_per_ip: Option<usize>,
+    /// As `--handshake-timeout`, in seconds.
+    pub handshake_timeout: Option<u64>,
+    /// As `--login-timeout`, in seconds.
+    pub login_timeout: Option<u64>,
     /// As `--idle-timeout`, in seconds.
     pub idle_timeout: Option<u64>,
+    /// As `--login-lockout`, in seconds.
+    pub login_lockout: Option<u64>,
+    /// As `--allow-origin`, a list.
+    pub allow_origin: Option<Vec<String>>,
+    /// As `--allow-host`, a list.
+    pub allow_host: Option<Vec<String>>,
+    /// As `--tls-cert`.
+    pub tls_cert: Option<PathBuf>,
+    /// As `--tls-key`.
+    pub tls_key: Option<PathBuf>,
     /// The login value that grants admin (protocol default `1025`).
     pub admin_password: Option<String>,
     /// The login value that logs out (protocol default `0315`).
@@ -116,6 +169,21 @@ pub enum ConfigError {
     /// A setting is out of range.
     #[error("invalid setting: {0}")]
     Invalid(&'static str),
+    /// An `--allow-origin` or `--allow-host` value is unusable.
+    #[error("invalid setting: {0}")]
+    Policy(#[from] crate::net::policy::PolicyError),
+}
+
+/// The lockout of an address after 5 wrong passwords, unless configured.
+pub const DEFAULT_LOGIN_LOCKOUT: Duration = Duration::from_secs(30);
+
+/// The certificate chain and key `wss://` is served with.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TlsFiles {
+    /// PEM certificate chain, the server's own first.
+    pub cert: PathBuf,
+    /// PEM private key.
+    pub key: PathBuf,
 }
 
 /// Everything `lluavd` runs with, resolved.
@@ -135,6 +203,12 @@ pub struct Settings {
     pub allow_no_password: bool,
     /// Connection limits.
     pub limits: Limits,
+    /// The Origin/Host policy.
+    pub policy: Policy,
+    /// `wss://`: the PEM certificate chain and key.
+    pub tls: Option<TlsFiles>,
+    /// The first lockout of an address after wrong passwords.
+    pub login_lockout: Duration,
     /// The admin login value.
     pub admin_password: String,
     /// The logout login value.
@@ -155,6 +229,7 @@ impl Settings {
 
     /// Settings from the command line over `file`.
     pub fn merge(cli: Cli, file: FileConfig) -> Result<Self, ConfigError> {
+        let limits = limits(&cli, &file)?;
         let data_dir = match cli.data_dir.or(file.data_dir) {
             Some(dir) => dir,
             None => directories::ProjectDirs::from("", "", "lluav")
@@ -166,27 +241,28 @@ impl Settings {
         if !(sim_speed.is_finite() && sim_speed > 0.0) {
             return Err(ConfigError::Invalid("--sim-speed must be a finite number > 0"));
         }
-        let defaults = Limits::default();
-        let limits = Limits {
-            max_message: cli
-                .max_message
-                .or(file.max_message)
-                .unwrap_or(defaults.max_message),
-            max_connections: cli
-                .max_connections
-                .or(file.max_connections)
-                .unwrap_or(defaults.max_connections),
-            idle_timeout: cli
-                .idle_timeout
-                .or(file.idle_timeout)
-                .map_or(defaults.idle_timeout, Duration::from_secs),
-            ..defaults
+        let origins = if cli.allow_origin.is_empty() {
+            file.allow_origin.unwrap_or_default()
+        } else {
+            cli.allow_origin
         };
-        if limits.max_message == 0 {
-            return Err(ConfigError::Invalid("--max-message must be > 0"));
-        }
-        if limits.max_connections == 0 {
-            return Err(ConfigError::Invalid("--max-connections must be > 0"));
+        let hosts = if cli.allow_host.is_empty() {
+            file.allow_host.unwrap_or_default()
+        } else {
+            cli.allow_host
+        };
+        let policy = Policy::new(&origins, &hosts)?;
+        let tls = match (cli.tls_cert.or(file.tls_cert), cli.tls_key.or(file.tls_key)) {
+            (Some(cert), Some(key)) => Some(TlsFiles { cert, key }),
+            (None, None) => None,
+            _ => return Err(ConfigError::Invalid("--tls-cert and --tls-key go together")),
+        };
+        let login_lockout = cli
+            .login_lockout
+            .or(file.login_lockout)
+            .map_or(DEFAULT_LOGIN_LOCKOUT, Duration::from_secs);
+        if login_lockout.is_zero() {
+            return Err(ConfigError::Invalid("--login-lockout must be > 0"));
         }
         let mavlink = cli.mavlink.or(file.mavlink);
         if let Some(address) = &mavlink
@@ -196,9 +272,6 @@ impl Settings {
                 "--mavlink must be udpin:HOST:PORT, udpout:HOST:PORT, tcpout:HOST:PORT or serial:DEVICE:BAUD",
             ));
         }
-        if limits.idle_timeout.is_zero() {
-            return Err(ConfigError::Invalid("--idle-timeout must be > 0"));
-        }
         Ok(Settings {
             bind: cli.bind.or(file.bind).unwrap_or(DEFAULT_BIND),
             password: cli.password.or(file.password),
@@ -206,6 +279,9 @@ impl Settings {
             sim_speed,
             allow_no_password: cli.allow_no_password || file.allow_no_password.unwrap_or(false),
             limits,
+            policy,
+            tls,
+            login_lockout,
             admin_password: file
                 .admin_password
                 .unwrap_or_else(|| lluav_core::session::DEFAULT_ADMIN_PASSWORD.to_owned()),
@@ -215,6 +291,67 @@ impl Settings {
             echo: cli.echo,
             mavlink,
         })
+    }
+}
+
+/// The connection limits: flags over the file over the defaults.
+fn limits(cli: &Cli, file: &FileConfig) -> Result<Limits, ConfigError> {
+    let defaults = Limits::default();
+    let secs = |flag: Option<u64>, key: Option<u64>, default: Duration| {
+        flag.or(key).map_or(default, Duration::from_secs)
+    };
+    let limits = Limits {
+        max_message: cli
+            .max_message
+            .or(file.max_message)
+            .unwrap_or(defaults.max_message),
+        max_connections: cli
+            .max_connections
+            .or(file.max_connections)
+            .unwrap_or(defaults.max_connections),
+        max_sessions_per_ip: cli
+            .max_sessions_per_ip
+            .or(file.max_sessions_per_ip)
+            .unwrap_or(defaults.max_sessions_per_ip),
+        max_handshakes: cli
+            .max_handshakes
+            .or(file.max_handshakes)
+            .unwrap_or(defaults.max_handshakes),
+        max_handshakes_per_ip: cli
+            .max_handshakes_per_ip
+            .or(file.max_handshakes_per_ip)
+            .unwrap_or(defaults.max_handshakes_per_ip),
+        handshake_timeout: secs(
+            cli.handshake_timeout,
+            file.handshake_timeout,
+            defaults.handshake_timeout,
+        ),
+        login_timeout: secs(cli.login_timeout, file.login_timeout, defaults.login_timeout),
+        idle_timeout: secs(cli.idle_timeout, file.idle_timeout, defaults.idle_timeout),
+        ..defaults
+    };
+    let positive = [
+        (limits.max_message == 0, "--max-message must be > 0"),
+        (limits.max_connections == 0, "--max-connections must be > 0"),
+        (
+            limits.max_sessions_per_ip == 0,
+            "--max-sessions-per-ip must be > 0",
+        ),
+        (limits.max_handshakes == 0, "--max-handshakes must be > 0"),
+        (
+            limits.max_handshakes_per_ip == 0,
+            "--max-handshakes-per-ip must be > 0",
+        ),
+        (
+            limits.handshake_timeout.is_zero(),
+            "--handshake-timeout must be > 0",
+        ),
+        (limits.login_timeout.is_zero(), "--login-timeout must be > 0"),
+        (limits.idle_timeout.is_zero(), "--idle-timeout must be > 0"),
+    ];
+    match positive.iter().find(|(zero, _)| *zero) {
+        Some((_, why)) => Err(ConfigError::Invalid(why)),
+        None => Ok(limits),
     }
 }
 

@@ -1,5 +1,5 @@
 //! `lluavd` put together: a vehicle behind lluav-core's [`Server`], served
-//! over [`crate::ws`], ticked on a timer, flushed at shutdown.
+//! over [`crate::net`], ticked on a timer, flushed at shutdown.
 //!
 //! The daemon holds one `Server` for the vehicle behind a mutex. Critical
 //! sections are one [`Server::handle`] call per frame and one tick per
@@ -19,10 +19,10 @@ use tracing::{error, info};
 use crate::companion::{Companion, CompanionConfig};
 use crate::config::Settings;
 use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
+use crate::net::{self, Echo, Handler};
 use crate::onboard::Onboard;
 use crate::recent_log::RecentLog;
 use crate::sim::Simulator;
-use crate::ws::{self, Echo, Handler, Limits};
 
 /// How often the vehicle is advanced.
 pub const TICK: Duration = Duration::from_millis(50);
@@ -146,6 +146,10 @@ impl<V: Vehicle> Handler for Protocol<V> {
         outcome
     }
 
+    fn admitted(&self, session: &Session) -> bool {
+        session.logged_in() || !self.locked(|server| server.auth().password_required())
+    }
+
     fn closed(&self, session: Session) {
         self.locked(|server| server.close(&session));
     }
@@ -180,6 +184,9 @@ pub enum DaemonError {
         /// Why.
         source: std::io::Error,
     },
+    /// The TLS certificate or key cannot be used.
+    #[error("cannot serve wss://: {0}")]
+    Tls(#[from] net::tls::TlsError),
     /// Persisting state at shutdown failed.
     #[error("cannot persist the vehicle's state at shutdown: {0}")]
     Flush(std::io::Error),
@@ -201,7 +208,7 @@ enum Mode<V> {
 /// A daemon that is listening and not yet serving.
 pub struct Daemon<V> {
     listener: TcpListener,
-    limits: Limits,
+    net: net::Config,
     mode: Mode<V>,
 }
 
@@ -266,22 +273,33 @@ impl<V: Vehicle> Daemon<V> {
             }
             None => Mode::Echo,
         };
+        let tls = match &settings.tls {
+            Some(files) => Some(net::tls::acceptor(&files.cert, &files.key)?),
+            None => None,
+        };
+        let net = net::Config {
+            limits: settings.limits,
+            policy: settings.policy.clone(),
+            tls,
+            console: true,
+        };
         let listener = TcpListener::bind(settings.bind)
             .await
             .map_err(|source| DaemonError::Bind {
                 addr: settings.bind,
                 source,
             })?;
-        Ok(Daemon {
-            listener,
-            limits: settings.limits,
-            mode,
-        })
+        Ok(Daemon { listener, net, mode })
     }
 
     /// The address actually bound (the port, when 0 was asked for).
     pub fn local_addr(&self) -> std::io::Result<SocketAddr> {
         self.listener.local_addr()
+    }
+
+    /// The URL scheme clients use: `wss` with TLS, else `ws`.
+    pub fn scheme(&self) -> &'static str {
+        if self.net.tls.is_some() { "wss" } else { "ws" }
     }
 
     /// Serves until `shutdown` completes, then lets connections finish and
@@ -290,14 +308,14 @@ impl<V: Vehicle> Daemon<V> {
         let server = match self.mode {
             Mode::Echo => {
                 info!("serving the echo handler (Autobahn mode)");
-                ws::serve(self.listener, Arc::new(Echo), self.limits, shutdown).await;
+                net::serve(self.listener, Arc::new(Echo), self.net, shutdown).await;
                 return Ok(());
             }
             Mode::Protocol(server) => Arc::new(Mutex::new(*server)),
         };
         let ticker = tokio::spawn(tick(Arc::clone(&server)));
         let handler = Arc::new(Protocol::new(Arc::clone(&server)));
-        ws::serve(self.listener, handler, self.limits, shutdown).await;
+        net::serve(self.listener, handler, self.net, shutdown).await;
         ticker.abort();
         let flushed = tokio::task::spawn_blocking(move || lock(&server).backend_mut().flush()).await;
         match flushed {
@@ -321,11 +339,16 @@ fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth, DaemonError
     if password.is_none() && !settings.bind.ip().is_loopback() && !settings.allow_no_password {
         return Err(DaemonError::NoPassword(settings.bind));
     }
+    let lockout_ms = |d: Duration| u32::try_from(d.as_millis()).unwrap_or(u32::MAX);
     Auth::with_specials(
         password.as_deref(),
         &settings.admin_password,
         &settings.logout_password,
     )
+    .map(|auth| {
+        let base = lockout_ms(settings.login_lockout);
+        auth.with_lockout(base, base.max(lluav_core::throttle::DEFAULT_MAX_LOCKOUT_MS))
+    })
     .map_err(|e| {
         DaemonError::Password(match e {
             AuthError::BadPassword => "a password must be 1-32 printable ASCII characters without spaces",

@@ -2,8 +2,9 @@
 //! the `lluav` client library.
 //!
 //! - [`daemon`]: the vehicle behind lluav-core's server, ticked and flushed;
-//! - [`ws`]: the WebSocket layer (framing, limits, shutdown) every
-//!   connection goes through;
+//! - [`net`]: the network layer every connection goes through (accept,
+//!   TLS, the HTTP upgrade and its Origin/Host policy, per-address limits,
+//!   framing, shutdown);
 //! - [`config`]: `lluavd`'s command line and config file;
 //! - [`client`]: the typed async client `lluav` is built on;
 //! - [`onboard`]: the daemon's backend, a [`companion`] computer and a
@@ -17,7 +18,7 @@ pub mod companion;
 pub mod config;
 pub mod daemon;
 pub mod mavlink;
+pub mod net;
 pub mod onboard;
 pub mod recent_log;
 pub mod sim;
-pub mod ws;

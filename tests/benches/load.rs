@@ -746,17 +746,12 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
     );
 }
 
-/// lluavd's tungstenite settings (`host/src/ws.rs`), for the echo server and
-/// the client. tungstenite zeroes `read_buffer_size` bytes before every
+/// lluavd's tungstenite settings (`host/src/net/listener.rs`), for the echo
+/// server and the client. tungstenite zeroes `read_buffer_size` bytes before every
 /// read, so its default of 128 KiB costs microseconds per message and would
 /// make the echo server a lower ceiling than it need be.
 fn transport_config() -> WebSocketConfig {
-    let max_message = lluav_host::ws::Limits::default().max_message;
-    WebSocketConfig::default()
-        .max_message_size(Some(max_message))
-        .max_frame_size(Some(max_message))
-        .read_buffer_size(16 * 1024)
-        .write_buffer_size(64 * 1024)
+    lluav_host::net::listener::websocket_config(&lluav_host::net::Limits::default())
 }
 
 /// The echo server as a child process (this binary with `--serve-echo`).

@@ -7,9 +7,14 @@
 //! also send what a well-behaved client never would (binary, broken UTF-8,
 //! fragments). Every wait is bounded by [`WAIT`], generous on purpose: a
 //! slow machine makes a test slower, never flaky.
+//!
+//! A daemon started with [`Options::tls`] serves `wss://` with a
+//! certificate for `localhost` and `127.0.0.1` issued by this process's
+//! own test CA ([`test_ca`], made with rcgen); [`Conn`] trusts that CA.
+//! [`over_ws_and_wss!`] runs a set of tests both ways.
 
 use std::io::{BufRead, BufReader, Read};
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
@@ -17,12 +22,14 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
+use lluav_host::client::{ConnectOptions, Transport};
 use serde_json::Value;
-use tokio::net::TcpStream;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpSocket, TcpStream};
+use tokio_tungstenite::WebSocketStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::frame::Frame;
 use tokio_tungstenite::tungstenite::protocol::frame::coding::{Data, OpCode};
-use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 /// Upper bound for any single wait in these tests.
 pub const WAIT: Duration = Duration::from_secs(60);
@@ -80,6 +87,8 @@ pub struct Options {
     pub password: Option<String>,
     /// `--sim-speed`.
     pub sim_speed: Option<f64>,
+    /// Serve `wss://` with a certificate from [`test_ca`].
+    pub tls: bool,
     /// Any further arguments.
     pub args: Vec<String>,
 }
@@ -92,6 +101,27 @@ impl Options {
             ..Options::default()
         }
     }
+
+    /// These options plus further arguments.
+    pub fn with_args(mut self, args: &[&str]) -> Self {
+        self.args.extend(args.iter().map(|a| (*a).to_owned()));
+        self
+    }
+
+    /// Allows `n` sessions and `n` pending handshakes from one address (the
+    /// defaults are a handful) and in all, for tests that open many
+    /// sessions at once from 127.0.0.1.
+    pub fn per_ip(self, n: usize) -> Self {
+        let n = n.to_string();
+        self.with_args(&[
+            "--max-sessions-per-ip",
+            &n,
+            "--max-handshakes-per-ip",
+            &n,
+            "--max-handshakes",
+            &n,
+        ])
+    }
 }
 
 /// A running `lluavd`, killed on drop if still running.
@@ -99,7 +129,7 @@ pub struct Lluavd {
     child: Child,
     /// Where it listens.
     pub addr: SocketAddr,
-    /// `ws://addr`.
+    /// `ws://addr`, or `wss://addr` with TLS.
     pub url: String,
     /// Its data directory.
     pub data_dir: PathBuf,
@@ -136,6 +166,10 @@ impl Lluavd {
         if let Some(s) = options.sim_speed {
             cmd.args(["--sim-speed", &s.to_string()]);
         }
+        if options.tls {
+            let (cert, key) = test_ca().issue(data_dir);
+            cmd.arg("--tls-cert").arg(cert).arg("--tls-key").arg(key);
+        }
         cmd.args(&options.args)
             .env_remove("LLUAV_PASSWORD")
             .env("RUST_LOG", "info")
@@ -166,20 +200,20 @@ impl Lluavd {
             }
         });
         let line = rx.recv_timeout(WAIT).ok().flatten();
-        let addr = line
-            .as_deref()
-            .and_then(|l| l.strip_prefix("listening on ws://"))
+        let url = line.as_deref().and_then(|l| l.strip_prefix("listening on "));
+        let addr = url
+            .and_then(|u| u.strip_prefix("ws://").or_else(|| u.strip_prefix("wss://")))
             .and_then(|a| a.parse::<SocketAddr>().ok());
-        match addr {
-            Some(addr) => Ok(Lluavd {
+        match (url, addr) {
+            (Some(url), Some(addr)) => Ok(Lluavd {
                 child,
                 addr,
-                url: format!("ws://{addr}"),
+                url: url.to_owned(),
                 data_dir: data_dir.to_owned(),
                 stderr,
                 more_stdout,
             }),
-            None => {
+            _ => {
                 let status = wait_timeout(&mut child, WAIT);
                 if status.is_none() {
                     let _ = child.kill();
@@ -253,9 +287,154 @@ fn wait_timeout(child: &mut Child, limit: Duration) -> Option<ExitStatus> {
     None
 }
 
+/// A certificate authority made for this test process.
+pub struct TestCa {
+    dir: tempfile::TempDir,
+    cert: rcgen::Certificate,
+    key: rcgen::KeyPair,
+}
+
+/// This process's test CA (made on first use).
+pub fn test_ca() -> &'static TestCa {
+    static CA: OnceLock<TestCa> = OnceLock::new();
+    CA.get_or_init(|| {
+        let mut params = rcgen::CertificateParams::new(Vec::<String>::new()).expect("CA parameters");
+        params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+        params.key_usages = vec![rcgen::KeyUsagePurpose::KeyCertSign];
+        params
+            .distinguished_name
+            .push(rcgen::DnType::CommonName, "lluav test CA");
+        let key = rcgen::KeyPair::generate().expect("CA key");
+        let cert = params.self_signed(&key).expect("CA certificate");
+        let dir = tempfile::tempdir().expect("temp dir");
+        std::fs::write(dir.path().join("ca.pem"), cert.pem()).expect("CA written");
+        TestCa { dir, cert, key }
+    })
+}
+
+impl TestCa {
+    /// The CA's certificate (PEM), what `--cafile` takes.
+    pub fn ca_file(&self) -> PathBuf {
+        self.dir.path().join("ca.pem")
+    }
+
+    /// A server certificate for `localhost` and `127.0.0.1`, written to
+    /// `dir` as `server.pem` and `server.key`; returns their paths.
+    pub fn issue(&self, dir: &Path) -> (PathBuf, PathBuf) {
+        let names = vec!["localhost".to_owned(), "127.0.0.1".to_owned()];
+        let mut params = rcgen::CertificateParams::new(names).expect("server parameters");
+        params
+            .distinguished_name
+            .push(rcgen::DnType::CommonName, "lluavd test server");
+        params.extended_key_usages = vec![rcgen::ExtendedKeyUsagePurpose::ServerAuth];
+        let key = rcgen::KeyPair::generate().expect("server key");
+        let cert = params
+            .signed_by(&key, &self.cert, &self.key)
+            .expect("server certificate");
+        std::fs::create_dir_all(dir).expect("data dir");
+        let (cert_path, key_path) = (dir.join("server.pem"), dir.join("server.key"));
+        std::fs::write(&cert_path, cert.pem()).expect("certificate written");
+        std::fs::write(&key_path, key.serialize_pem()).expect("key written");
+        (cert_path, key_path)
+    }
+
+    /// Client options trusting this CA.
+    pub fn options(&self) -> ConnectOptions {
+        ConnectOptions {
+            ca_file: Some(self.ca_file()),
+        }
+    }
+}
+
+/// `ws://` or `wss://`, for tests that run both ways.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scheme {
+    /// Plain WebSocket.
+    Ws,
+    /// WebSocket over TLS.
+    Wss,
+}
+
+impl Scheme {
+    /// Options for a daemon with this password over this scheme.
+    pub fn options(self, password: &str) -> Options {
+        Options {
+            tls: self == Scheme::Wss,
+            ..Options::password(password)
+        }
+    }
+}
+
+/// Runs each named `async fn name(scheme: Scheme)` of the calling test
+/// file twice: as `over_ws::name` and as `over_wss::name`.
+#[macro_export]
+macro_rules! over_ws_and_wss {
+    ($($name:ident),* $(,)?) => {
+        mod over_ws {
+            $(
+                #[tokio::test]
+                async fn $name() {
+                    super::$name($crate::Scheme::Ws).await;
+                }
+            )*
+        }
+        mod over_wss {
+            $(
+                #[tokio::test]
+                async fn $name() {
+                    super::$name($crate::Scheme::Wss).await;
+                }
+            )*
+        }
+    };
+}
+
+/// A TCP connection to `addr` from the loopback address `source` (any of
+/// 127.0.0.0/8), so one test can play many client addresses.
+pub async fn tcp_from(source: IpAddr, addr: SocketAddr) -> std::io::Result<TcpStream> {
+    let socket = TcpSocket::new_v4()?;
+    socket.bind(SocketAddr::new(source, 0))?;
+    socket.connect(addr).await
+}
+
+/// A WebSocket upgrade request for `addr` with extra header lines (each
+/// ending in `\r\n`).
+pub fn upgrade_request(addr: SocketAddr, extra: &str) -> String {
+    format!(
+        "GET / HTTP/1.1\r\nHost: {addr}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
+         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n{extra}\r\n"
+    )
+}
+
+/// Sends `request` over plain TCP and returns the HTTP status code of the
+/// answer (0 if the connection ended without one) and the whole answer.
+pub async fn http_status(addr: SocketAddr, request: &str) -> (u16, String) {
+    let mut tcp = TcpStream::connect(addr).await.expect("TCP connect");
+    tcp.write_all(request.as_bytes()).await.expect("request written");
+    let mut answer = Vec::new();
+    let read = async {
+        let mut buf = [0u8; 4096];
+        // Up to the end of the head: an upgrade stays open after its 101.
+        while !answer.windows(4).any(|w| w == b"\r\n\r\n") {
+            match tcp.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => answer.extend_from_slice(buf.get(..n).unwrap_or_default()),
+            }
+        }
+    };
+    tokio::time::timeout(WAIT, read).await.expect("an answer in time");
+    let text = String::from_utf8_lossy(&answer).into_owned();
+    let code = text
+        .strip_prefix("HTTP/1.1 ")
+        .and_then(|rest| rest.get(..3))
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    (code, text)
+}
+
 /// One raw WebSocket connection.
 pub struct Conn {
-    ws: WebSocketStream<MaybeTlsStream<TcpStream>>,
+    ws: WebSocketStream<Transport>,
 }
 
 /// What came back instead of a text message.
@@ -272,13 +451,25 @@ pub enum Received {
 }
 
 impl Conn {
-    /// Connects to `url`.
+    /// Connects to `url` (`wss://` trusts [`test_ca`]).
     pub async fn connect(url: &str) -> Conn {
-        let (ws, _) = tokio::time::timeout(WAIT, tokio_tungstenite::connect_async(url))
+        match Conn::try_connect(url).await {
+            Ok(c) => c,
+            Err(e) => panic!("cannot connect to {url}: {e}"),
+        }
+    }
+
+    /// Connects to `url`, or says why not.
+    pub async fn try_connect(url: &str) -> Result<Conn, lluav_host::client::ClientError> {
+        let options = if url.starts_with("wss://") {
+            test_ca().options()
+        } else {
+            ConnectOptions::default()
+        };
+        let ws = tokio::time::timeout(WAIT, lluav_host::client::open(url, &options))
             .await
-            .expect("connect in time")
-            .expect("WebSocket handshake");
-        Conn { ws }
+            .expect("connect in time")?;
+        Ok(Conn { ws })
     }
 
     /// Connects and logs in with `password`, asserting success.

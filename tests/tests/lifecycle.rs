@@ -117,7 +117,7 @@ async fn a_password_pinned_by_the_configuration_survives_passwd_and_a_restart() 
 #[tokio::test]
 async fn sigterm_under_load_loses_no_acknowledged_save() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD).per_ip(32));
     let url = daemon.url.clone();
     let stop = Arc::new(AtomicBool::new(false));
     let answered = Arc::new(AtomicUsize::new(0));

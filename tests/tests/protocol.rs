@@ -1,20 +1,28 @@
 //! The protocol as a client sees it from lluavd: login and gates, a whole
-//! flight of the simulated vehicle, and every command of the table.
+//! flight of the simulated vehicle, and every command of the table; each
+//! over `ws://` and over `wss://`.
 
 use lluav_core::{CommandId, Grammar, TABLE};
-use lluav_tests::{Conn, Lluavd, Options, wait_for_state};
+use lluav_tests::{Conn, Lluavd, Options, Scheme, wait_for_state};
 use serde_json::Value;
 
 const PASSWORD: &str = "s3cret";
+
+lluav_tests::over_ws_and_wss!(
+    login_and_gates_follow_the_design,
+    a_whole_flight_takes_off_follows_setpoints_and_lands,
+    every_command_of_the_table_gets_exactly_one_valid_response,
+    showmsg_shows_the_daemons_own_log_lines,
+    a_new_password_applies_to_every_session,
+);
 
 fn msg(r: &Value) -> &str {
     r["msg"].as_str().unwrap_or("")
 }
 
-#[tokio::test]
-async fn login_and_gates_follow_the_design() {
+async fn login_and_gates_follow_the_design(scheme: Scheme) {
     let dir = tempfile::tempdir().expect("temp dir");
-    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let daemon = Lluavd::start(dir.path(), &scheme.options(PASSWORD));
     let mut user = Conn::connect(&daemon.url).await;
 
     let r = user.request("state").await;
@@ -77,12 +85,11 @@ async fn login_and_gates_follow_the_design() {
     admin.close().await;
 }
 
-#[tokio::test]
-async fn a_whole_flight_takes_off_follows_setpoints_and_lands() {
+async fn a_whole_flight_takes_off_follows_setpoints_and_lands(scheme: Scheme) {
     let dir = tempfile::tempdir().expect("temp dir");
     let options = Options {
         sim_speed: Some(10.0),
-        ..Options::password(PASSWORD)
+        ..scheme.options(PASSWORD)
     };
     let daemon = Lluavd::start(dir.path(), &options);
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
@@ -151,10 +158,9 @@ fn sample_args(grammar: Grammar) -> &'static str {
     }
 }
 
-#[tokio::test]
-async fn every_command_of_the_table_gets_exactly_one_valid_response() {
+async fn every_command_of_the_table_gets_exactly_one_valid_response(scheme: Scheme) {
     let dir = tempfile::tempdir().expect("temp dir");
-    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let daemon = Lluavd::start(dir.path(), &scheme.options(PASSWORD));
     let mut c = Conn::login(&daemon.url, "1025").await;
     for spec in &TABLE {
         let args = sample_args(spec.grammar);
@@ -202,10 +208,9 @@ async fn every_command_of_the_table_gets_exactly_one_valid_response() {
     c.close().await;
 }
 
-#[tokio::test]
-async fn showmsg_shows_the_daemons_own_log_lines() {
+async fn showmsg_shows_the_daemons_own_log_lines(scheme: Scheme) {
     let dir = tempfile::tempdir().expect("temp dir");
-    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let daemon = Lluavd::start(dir.path(), &scheme.options(PASSWORD));
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
     let r = c.request("showmsg 50").await;
     assert_eq!(r["ret"], 0, "{r}");
@@ -219,12 +224,17 @@ async fn showmsg_shows_the_daemons_own_log_lines() {
     );
 }
 
-#[tokio::test]
-async fn a_new_password_applies_to_every_session() {
+async fn a_new_password_applies_to_every_session(scheme: Scheme) {
     let dir = tempfile::tempdir().expect("temp dir");
     // A saved password, not a configured one: passwd may change it.
     std::fs::write(dir.path().join("password"), PASSWORD).expect("password saved");
-    let daemon = Lluavd::start(dir.path(), &Options::default());
+    let daemon = Lluavd::start(
+        dir.path(),
+        &Options {
+            tls: scheme == Scheme::Wss,
+            ..Options::default()
+        },
+    );
     let mut a = Conn::login(&daemon.url, PASSWORD).await;
     let mut b = Conn::connect(&daemon.url).await;
     let r = a.request("passwd changed1").await;

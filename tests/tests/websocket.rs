@@ -1,51 +1,66 @@
 //! lluavd's WebSocket behaviour (DESIGN.md, "WebSocket behaviour") and its
-//! limits, over real sockets.
+//! limits, over real sockets; the behaviour over both `ws://` and `wss://`.
 
 use futures_util::future::join_all;
-use lluav_tests::{Conn, Lluavd, Options, Received};
+use lluav_tests::{Conn, Lluavd, Options, Received, Scheme};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::frame::coding::Data;
 
 const PASSWORD: &str = "s3cret";
 
-async fn daemon_with(args: &[&str]) -> (tempfile::TempDir, Lluavd) {
+fn daemon_over(scheme: Scheme, options: Options) -> (tempfile::TempDir, Lluavd) {
     let dir = tempfile::tempdir().expect("temp dir");
     let options = Options {
-        args: args.iter().map(|s| (*s).to_owned()).collect(),
-        ..Options::password(PASSWORD)
+        tls: scheme == Scheme::Wss,
+        ..options
     };
     let daemon = Lluavd::start(dir.path(), &options);
     (dir, daemon)
 }
 
-#[tokio::test]
-async fn binary_message_closes_with_1003() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn daemon_with(scheme: Scheme, args: &[&str]) -> (tempfile::TempDir, Lluavd) {
+    daemon_over(scheme, Options::password(PASSWORD).with_args(args))
+}
+
+lluav_tests::over_ws_and_wss!(
+    binary_message_closes_with_1003,
+    invalid_utf8_closes_with_1007,
+    message_over_the_limit_closes_with_1009,
+    fragmented_message_over_the_limit_closes_with_1009,
+    ping_gets_pong_with_the_same_payload,
+    fragmented_text_is_reassembled_into_one_request,
+    five_wrong_passwords_are_answered_then_closed_with_1008,
+    client_close_is_answered_with_a_close,
+    pipelined_requests_are_answered_in_order,
+    a_hundred_and_fifty_concurrent_sessions_are_served,
+    a_stalled_client_does_not_delay_the_others,
+    idle_connections_are_closed,
+);
+
+async fn binary_message_closes_with_1003(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
     c.send_raw(Message::binary(b"state".to_vec())).await;
     assert_eq!(c.close_code().await, Some(1003));
 }
 
-#[tokio::test]
-async fn invalid_utf8_closes_with_1007() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn invalid_utf8_closes_with_1007(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
     c.send_text_frame(b"state \xff\xfe", Data::Text, true).await;
     assert_eq!(c.close_code().await, Some(1007));
 }
 
-#[tokio::test]
-async fn message_over_the_limit_closes_with_1009() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn message_over_the_limit_closes_with_1009(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
     let big = format!("plan {}", "x".repeat(64 * 1024));
     c.send(&big).await;
     assert_eq!(c.close_code().await, Some(1009));
 }
 
-#[tokio::test]
-async fn fragmented_message_over_the_limit_closes_with_1009() {
-    let (_dir, daemon) = daemon_with(&["--max-message", "1000"]).await;
+async fn fragmented_message_over_the_limit_closes_with_1009(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &["--max-message", "1000"]).await;
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
     let chunk = [b'x'; 600];
     c.send_text_frame(b"plan ", Data::Text, false).await;
@@ -54,9 +69,8 @@ async fn fragmented_message_over_the_limit_closes_with_1009() {
     assert_eq!(c.close_code().await, Some(1009));
 }
 
-#[tokio::test]
-async fn ping_gets_pong_with_the_same_payload() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn ping_gets_pong_with_the_same_payload(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut c = Conn::connect(&daemon.url).await;
     c.send_raw(Message::Ping(b"are you there".to_vec().into())).await;
     assert_eq!(c.recv().await, Received::Pong(b"are you there".to_vec()));
@@ -65,9 +79,8 @@ async fn ping_gets_pong_with_the_same_payload() {
     assert_eq!(r["ret"], 0, "{r}");
 }
 
-#[tokio::test]
-async fn fragmented_text_is_reassembled_into_one_request() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn fragmented_text_is_reassembled_into_one_request(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
     // Setpoints are for a vehicle in the air.
     let r = c.request("takeoff").await;
@@ -81,9 +94,8 @@ async fn fragmented_text_is_reassembled_into_one_request() {
     assert_eq!((r["ret"].as_i64(), r["cmd"].as_i64()), (Some(0), Some(23)), "{r}");
 }
 
-#[tokio::test]
-async fn five_wrong_passwords_are_answered_then_closed_with_1008() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn five_wrong_passwords_are_answered_then_closed_with_1008(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut c = Conn::connect(&daemon.url).await;
     for _ in 0..5 {
         let r = c.request("login guess").await;
@@ -92,9 +104,8 @@ async fn five_wrong_passwords_are_answered_then_closed_with_1008() {
     assert_eq!(c.close_code().await, Some(1008));
 }
 
-#[tokio::test]
-async fn client_close_is_answered_with_a_close() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn client_close_is_answered_with_a_close(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut c = Conn::connect(&daemon.url).await;
     c.send_raw(Message::Close(None)).await;
     assert!(
@@ -103,9 +114,8 @@ async fn client_close_is_answered_with_a_close() {
     );
 }
 
-#[tokio::test]
-async fn pipelined_requests_are_answered_in_order() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn pipelined_requests_are_answered_in_order(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
     // A mix of commands with distinct ids, all sent before reading any reply.
     let frames = [
@@ -131,9 +141,8 @@ async fn pipelined_requests_are_answered_in_order() {
     }
 }
 
-#[tokio::test]
-async fn a_hundred_and_fifty_concurrent_sessions_are_served() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn a_hundred_and_fifty_concurrent_sessions_are_served(scheme: Scheme) {
+    let (_dir, daemon) = daemon_over(scheme, Options::password(PASSWORD).per_ip(150));
     let url = daemon.url.clone();
     // All connections are open at once before any of them sends a request.
     let mut conns = join_all((0..150).map(|_| Conn::login(&url, PASSWORD))).await;
@@ -151,9 +160,8 @@ async fn a_hundred_and_fifty_concurrent_sessions_are_served() {
     join_all(conns.into_iter().map(Conn::close)).await;
 }
 
-#[tokio::test]
-async fn a_stalled_client_does_not_delay_the_others() {
-    let (_dir, daemon) = daemon_with(&[]).await;
+async fn a_stalled_client_does_not_delay_the_others(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &[]).await;
     let mut stalled = Conn::login(&daemon.url, PASSWORD).await;
     // Half a message that never completes, and many requests never read.
     stalled.send_text_frame(b"sta", Data::Text, false).await;
@@ -166,7 +174,7 @@ async fn a_stalled_client_does_not_delay_the_others() {
 
 #[tokio::test]
 async fn connections_over_the_limit_are_refused_with_503() {
-    let (_dir, daemon) = daemon_with(&["--max-connections", "3"]).await;
+    let (_dir, daemon) = daemon_with(Scheme::Ws, &["--max-connections", "3"]).await;
     let mut held = Vec::new();
     for _ in 0..3 {
         held.push(Conn::login(&daemon.url, PASSWORD).await);
@@ -191,9 +199,8 @@ async fn connections_over_the_limit_are_refused_with_503() {
     assert!(again.is_some(), "a freed slot is reused");
 }
 
-#[tokio::test]
-async fn idle_connections_are_closed() {
-    let (_dir, daemon) = daemon_with(&["--idle-timeout", "1"]).await;
+async fn idle_connections_are_closed(scheme: Scheme) {
+    let (_dir, daemon) = daemon_with(scheme, &["--idle-timeout", "1"]).await;
     let mut c = Conn::login(&daemon.url, PASSWORD).await;
     assert_eq!(c.close_code().await, Some(1000));
 }

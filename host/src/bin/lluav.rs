@@ -1,6 +1,6 @@
 //! `lluav`: the LLUAV command-line client.
 //!
-//! `lluav [--url URL] [--password P] COMMAND [ARGS]` sends one command and
+//! `lluav [--url URL] [--cafile FILE] [--password P] COMMAND [ARGS]` sends one command and
 //! prints its response as pretty JSON; the exit status is 0 when `ret` is
 //! 0, 1 when the command failed or the server could not be reached, 2 when
 //! the command line is not a valid request. Without a command it starts an
@@ -11,7 +11,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use lluav_core::{Grammar, TABLE};
-use lluav_host::client::{Client, ClientError, DEFAULT_URL, Response};
+use lluav_host::client::{Client, ClientError, ConnectOptions, DEFAULT_URL, Response};
 use rustyline::completion::{Completer, Pair};
 use rustyline::error::ReadlineError;
 use rustyline::highlight::Highlighter;
@@ -25,9 +25,13 @@ use tokio::runtime::Runtime;
 #[derive(Debug, Parser)]
 #[command(name = "lluav", version)]
 struct Cli {
-    /// The server.
+    /// The server: ws://HOST:PORT, or wss://HOST:PORT for TLS.
     #[arg(long, default_value = DEFAULT_URL, value_name = "URL")]
     url: String,
+    /// For wss:// servers with a self-signed certificate: a PEM file of the
+    /// certificates to trust (e.g. the server's own) instead of the system's.
+    #[arg(long, env = "LLUAV_CAFILE", value_name = "FILE")]
+    cafile: Option<PathBuf>,
     /// Log in with this password first.
     #[arg(long, env = "LLUAV_PASSWORD", hide_env_values = true, value_name = "P")]
     password: Option<String>,
@@ -88,13 +92,18 @@ fn one_shot(runtime: &Runtime, cli: &Cli, line: &str) -> ExitCode {
 /// Connects and, when a password is given, logs in (a refused login is an
 /// error: every command after it would be refused too).
 async fn connect(cli: &Cli) -> Result<Client, ClientError> {
-    let mut client = Client::connect(&cli.url).await.map_err(|e| match e {
-        ClientError::Connect { url, source } => ClientError::Connect {
-            url: format!("{url} (is lluavd running?)"),
-            source,
-        },
-        other => other,
-    })?;
+    let options = ConnectOptions {
+        ca_file: cli.cafile.clone(),
+    };
+    let mut client = Client::connect_with(&cli.url, &options)
+        .await
+        .map_err(|e| match e {
+            ClientError::Connect { url, source } => ClientError::Connect {
+                url: format!("{url} (is lluavd running?)"),
+                source,
+            },
+            other => other,
+        })?;
     if let Some(password) = &cli.password {
         client.login(password).await?.check()?;
     }

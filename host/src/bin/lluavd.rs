@@ -13,7 +13,7 @@ use lluav_host::config::{Cli, Settings};
 use lluav_host::daemon::{Daemon, DaemonError, Vehicle};
 use lluav_host::recent_log::RecentLog;
 use tokio::signal::unix::{Signal, SignalKind, signal};
-use tracing::{error, info};
+use tracing::{error, info, warn};
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
 use tracing_subscriber::{EnvFilter, fmt};
@@ -93,9 +93,10 @@ async fn serve<V: Vehicle>(
             return ExitCode::FAILURE;
         }
     };
+    warn_about_public_admin_value(&settings);
     info!(%addr, data_dir = %settings.data_dir.display(), mavlink = settings.mavlink.as_deref().unwrap_or("-"), "lluavd ready");
     let mut stdout = std::io::stdout().lock();
-    if writeln!(stdout, "listening on ws://{addr}")
+    if writeln!(stdout, "listening on {}://{addr}", daemon.scheme())
         .and_then(|()| stdout.flush())
         .is_err()
     {
@@ -115,5 +116,19 @@ async fn serve<V: Vehicle>(
             error!("{e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// The admin login value `1025` is in the public spec: beyond loopback,
+/// anyone who can reach the port could use it.
+fn warn_about_public_admin_value(settings: &Settings) {
+    let public = settings.admin_password == lluav_core::session::DEFAULT_ADMIN_PASSWORD;
+    if public && !settings.echo && !settings.bind.ip().is_loopback() {
+        warn!(
+            bind = %settings.bind,
+            "the admin login value is the protocol's public default (1025) and this daemon is reachable \
+             beyond loopback: anyone who can connect can log in as admin. Set `admin_password = \"...\"` \
+             in the config file (--config FILE) to change it"
+        );
     }
 }

@@ -1,0 +1,331 @@
+//! The accept loop and each connection's way from accept to its session:
+//! TLS (for `wss://`), the request head within the handshake deadline, the
+//! verdict, a slot, the `101`, then the [`Connection`]. Shutdown: stop
+//! accepting, let sessions answer what already arrived, close them with
+//! 1001, wait (bounded) for them to go.
+
+use std::future::Future;
+use std::net::{IpAddr, SocketAddr};
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::watch;
+use tokio::task::JoinSet;
+use tokio::time::{Instant, timeout, timeout_at};
+use tokio_rustls::TlsAcceptor;
+use tokio_tungstenite::WebSocketStream;
+use tokio_tungstenite::tungstenite::protocol::{Role, WebSocketConfig};
+use tracing::{debug, info, warn};
+
+use super::connection::Connection;
+use super::handshake::{self, HeadError, Refusal, Request};
+use super::report::{Offence, Reports};
+use super::slots::{Capacity, Full, Held, Pending, Slots};
+use super::{Handler, Limits, Policy};
+
+/// Bytes of replies a connection gathers before writing them to the socket
+/// (it also writes whenever no further request is waiting).
+const WRITE_BUFFER: usize = 64 * 1024;
+
+/// After refusing a request, how long the rest of what the client sent is
+/// read and discarded, so that closing does not reset the connection before
+/// the client has read the answer.
+const LINGER: Duration = Duration::from_secs(1);
+
+/// Everything a listener serves with.
+#[derive(Clone, Default)]
+pub struct Config {
+    /// Limits and timeouts.
+    pub limits: Limits,
+    /// The Origin/Host policy.
+    pub policy: Policy,
+    /// `Some`: `wss://`, TLS with this acceptor on the same port.
+    pub tls: Option<TlsAcceptor>,
+    /// Whether plain HTTP requests get the web console.
+    pub console: bool,
+}
+
+impl Config {
+    fn capacity(&self) -> Capacity {
+        Capacity {
+            handshakes: self.limits.max_handshakes,
+            handshakes_per_ip: self.limits.max_handshakes_per_ip,
+            sessions: self.limits.max_connections,
+            sessions_per_ip: self.limits.max_sessions_per_ip,
+        }
+    }
+}
+
+/// What every connection task of one listener shares.
+struct Shared<H> {
+    handler: Arc<H>,
+    config: Config,
+    slots: Arc<Slots>,
+    reports: Reports,
+}
+
+/// tungstenite's settings for a session.
+pub fn websocket_config(limits: &Limits) -> WebSocketConfig {
+    WebSocketConfig::default()
+        .max_message_size(Some(limits.max_message))
+        .max_frame_size(Some(limits.max_message))
+        .read_buffer_size(16 * 1024)
+        .write_buffer_size(WRITE_BUFFER)
+}
+
+/// Serves connections on `listener` with `handler` until `shutdown`
+/// completes, then stops accepting, lets every session answer the frames
+/// it already received, closes them with 1001 and returns once they are
+/// gone (or [`Limits::shutdown_grace`] has passed).
+pub async fn serve<H: Handler>(
+    listener: TcpListener,
+    handler: Arc<H>,
+    config: Config,
+    shutdown: impl Future<Output = ()>,
+) {
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let shared = Arc::new(Shared {
+        handler,
+        slots: Slots::new(config.capacity()),
+        config,
+        reports: Reports::default(),
+    });
+    let mut tasks = JoinSet::new();
+    tokio::pin!(shutdown);
+    loop {
+        tokio::select! {
+            () = &mut shutdown => break,
+            Some(_) = tasks.join_next(), if !tasks.is_empty() => {}
+            accepted = listener.accept() => {
+                let (stream, peer) = match accepted {
+                    Ok(a) => a,
+                    Err(e) => {
+                        // Typically EMFILE: back off instead of spinning.
+                        warn!(error = %e, "accept failed");
+                        tokio::time::sleep(Duration::from_millis(100)).await;
+                        continue;
+                    }
+                };
+                let deadline = Instant::now() + shared.config.limits.handshake_timeout;
+                let (pending, dropped) = shared.slots.begin(peer.ip());
+                for ip in dropped {
+                    shared.reports.note(ip, Offence::HandshakeDropped);
+                }
+                tasks.spawn(accept(stream, peer, pending, deadline, Arc::clone(&shared), stop_rx.clone()));
+            }
+        }
+    }
+    drop(listener);
+    info!(sessions = shared.slots.sessions(), "shutting down");
+    let _ = stop_tx.send(true);
+    let grace = shared.config.limits.shutdown_grace;
+    let drained = timeout(grace, async { while tasks.join_next().await.is_some() {} }).await;
+    if drained.is_err() {
+        warn!(
+            left = tasks.len(),
+            "connections still open after the grace period; dropping them"
+        );
+        tasks.shutdown().await;
+    }
+}
+
+/// Serves one connection over any byte stream, from its request head to
+/// its close, with a slot registry of its own: the fuzz targets and tests
+/// pass in-memory streams. `local` is the address the client connected to.
+pub async fn serve_stream<S, H>(
+    stream: S,
+    peer: SocketAddr,
+    local: IpAddr,
+    handler: Arc<H>,
+    config: Config,
+    stop: watch::Receiver<bool>,
+) where
+    S: AsyncRead + AsyncWrite + Unpin,
+    H: Handler,
+{
+    let deadline = Instant::now() + config.limits.handshake_timeout;
+    let shared = Shared {
+        handler,
+        slots: Slots::new(config.capacity()),
+        config,
+        reports: Reports::default(),
+    };
+    let (pending, _) = shared.slots.begin(peer.ip());
+    upgrade(stream, peer, local, pending, deadline, &shared, stop).await;
+}
+
+/// A TCP connection: TLS first for `wss://`, then the upgrade.
+async fn accept<H: Handler>(
+    tcp: TcpStream,
+    peer: SocketAddr,
+    pending: Pending,
+    deadline: Instant,
+    shared: Arc<Shared<H>>,
+    stop: watch::Receiver<bool>,
+) {
+    if let Err(e) = tcp.set_nodelay(true) {
+        debug!(%peer, error = %e, "TCP_NODELAY not set");
+    }
+    let Ok(local) = tcp.local_addr() else {
+        return;
+    };
+    let Some(acceptor) = shared.config.tls.clone() else {
+        upgrade(tcp, peer, local.ip(), pending, deadline, &shared, stop).await;
+        return;
+    };
+    let tls = tokio::select! {
+        biased;
+        () = pending.cancel.notified() => return,
+        tls = timeout_at(deadline, acceptor.accept(tcp)) => tls,
+    };
+    match tls {
+        Ok(Ok(stream)) => upgrade(stream, peer, local.ip(), pending, deadline, &shared, stop).await,
+        Ok(Err(e)) => debug!(%peer, error = %e, "TLS handshake failed"),
+        Err(_) => shared.reports.note(peer.ip(), Offence::HandshakeTimeout),
+    }
+}
+
+/// Reads and judges the request head, answers it, and serves the session
+/// if it is an acceptable upgrade with a slot free.
+async fn upgrade<S, H>(
+    mut stream: S,
+    peer: SocketAddr,
+    local: IpAddr,
+    pending: Pending,
+    deadline: Instant,
+    shared: &Shared<H>,
+    stop: watch::Receiver<bool>,
+) where
+    S: AsyncRead + AsyncWrite + Unpin,
+    H: Handler,
+{
+    let mut buf = Vec::new();
+    let head = tokio::select! {
+        biased;
+        () = pending.cancel.notified() => return,
+        head = timeout_at(deadline, handshake::read_head(&mut stream, &mut buf)) => head,
+    };
+    let len = match head {
+        Ok(Ok(len)) => len,
+        Ok(Err(HeadError::Closed)) => return,
+        Ok(Err(HeadError::Refused(refusal))) => {
+            return refuse(stream, peer, &refusal, Offence::BadRequest, deadline, shared).await;
+        }
+        Err(_) => return shared.reports.note(peer.ip(), Offence::HandshakeTimeout),
+    };
+    let leftover = buf.split_off(len);
+    let tls = shared.config.tls.is_some();
+    let key = match handshake::judge(&buf, &shared.config.policy, local, tls) {
+        Ok(Request::Upgrade { key }) => key,
+        Ok(Request::Http { method, target }) => {
+            let answer = handshake::console_response(shared.config.console, &method, &target);
+            return answer_and_close(stream, &answer, deadline).await;
+        }
+        Err(refusal) => {
+            let offence = match refusal {
+                Refusal::Forbidden(_) => Offence::Forbidden,
+                _ => Offence::BadRequest,
+            };
+            return refuse(stream, peer, &refusal, offence, deadline, shared).await;
+        }
+    };
+    let slot = match shared.slots.admit(pending, peer.ip()) {
+        Ok((slot, reclaimed)) => {
+            if let Some(ip) = reclaimed {
+                shared.reports.note(ip, Offence::SessionReclaimed);
+            }
+            slot
+        }
+        Err(full) => {
+            let offence = match full {
+                Full::Address => Offence::TooManySessions,
+                Full::Server => Offence::ServerFull,
+            };
+            let refusal = unavailable(full, &shared.config.limits);
+            return refuse(stream, peer, &refusal, offence, deadline, shared).await;
+        }
+    };
+    let answered = timeout_at(deadline, async {
+        stream.write_all(&handshake::switching_protocols(&key)).await?;
+        stream.flush().await
+    })
+    .await;
+    if !matches!(answered, Ok(Ok(()))) {
+        return;
+    }
+    session(stream, peer, leftover, slot, shared, stop).await;
+}
+
+/// The session after its `101`.
+async fn session<S, H>(
+    stream: S,
+    peer: SocketAddr,
+    leftover: Vec<u8>,
+    slot: Held,
+    shared: &Shared<H>,
+    stop: watch::Receiver<bool>,
+) where
+    S: AsyncRead + AsyncWrite + Unpin,
+    H: Handler,
+{
+    let limits = shared.config.limits;
+    let config = websocket_config(&limits);
+    let ws = WebSocketStream::from_partially_read(stream, leftover, Role::Server, Some(config)).await;
+    Connection::new(ws, &*shared.handler, peer, limits, Some(slot))
+        .run(stop, &shared.reports)
+        .await;
+}
+
+/// The 503 for a connection that found no slot.
+fn unavailable(full: Full, limits: &Limits) -> Refusal {
+    Refusal::Unavailable(match full {
+        Full::Address => format!(
+            "this address already has {} sessions, the most allowed (--max-sessions-per-ip); try again later",
+            limits.max_sessions_per_ip
+        ),
+        Full::Server => format!(
+            "every session slot ({}) is taken (--max-connections); try again later",
+            limits.max_connections
+        ),
+    })
+}
+
+/// Answers a refused request with its status, notes the offence, closes.
+async fn refuse<S, H>(
+    stream: S,
+    peer: SocketAddr,
+    refusal: &Refusal,
+    offence: Offence,
+    deadline: Instant,
+    shared: &Shared<H>,
+) where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    debug!(%peer, status = refusal.code(), "{refusal}");
+    shared.reports.note(peer.ip(), offence);
+    answer_and_close(stream, &refusal.to_bytes(), deadline).await;
+}
+
+/// Writes `answer`, ends the stream and reads on briefly, so that the
+/// client reads the answer before the socket closes.
+async fn answer_and_close<S: AsyncRead + AsyncWrite + Unpin>(
+    mut stream: S,
+    answer: &[u8],
+    deadline: Instant,
+) {
+    let wrote = timeout_at(deadline, async {
+        stream.write_all(answer).await?;
+        stream.shutdown().await
+    })
+    .await;
+    if !matches!(wrote, Ok(Ok(()))) {
+        return;
+    }
+    let mut sink = [0u8; 1024];
+    let _ = timeout(LINGER, async {
+        while let Ok(1..) = stream.read(&mut sink).await {}
+    })
+    .await;
+}

@@ -1,0 +1,137 @@
+//! The daemon's network layer: accepting, TLS, the HTTP upgrade, framing,
+//! limits and shutdown. Everything here is about sockets; nothing is about
+//! the protocol.
+//!
+//! - [`listener`]: the accept loop, the handshake and session pools and
+//!   the per-address limits ([`slots`]), shutdown;
+//! - [`handshake`]: the request head, read and judged by us (RFC 6455,
+//!   the [`policy`] on `Origin` and `Host`), answered `101` or refused;
+//! - [`connection`]: one session after its `101`, the [`Connection`];
+//! - [`tls`]: `wss://` with rustls;
+//! - [`report`]: log lines about misbehaving clients, rate-limited.
+//!
+//! Each connection hands every complete message to a [`Handler`] as a core
+//! [`Message`] and carries out the [`Outcome`]. The protocol handler
+//! ([`crate::daemon::Protocol`]) and the Autobahn echo handler ([`Echo`])
+//! share this code path, so what Autobahn tests is what clients get.
+
+pub mod connection;
+mod console_fallback;
+pub mod handshake;
+pub mod listener;
+pub mod policy;
+pub mod report;
+pub mod slots;
+pub mod tls;
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use lluav_core::{Message, Outcome};
+
+pub use connection::Connection;
+pub use listener::{Config, serve, serve_stream};
+pub use policy::Policy;
+
+/// What a connection does with each complete message.
+pub trait Handler: Send + Sync + 'static {
+    /// Per-connection state (for the protocol: the login [`lluav_core::Session`]).
+    type Session: Send + 'static;
+
+    /// State for a new connection from `peer`.
+    fn session(&self, peer: SocketAddr) -> Self::Session;
+
+    /// Whether the session may stay without a login deadline and may not
+    /// be reclaimed for a newcomer: logged in, or no login needed.
+    fn admitted(&self, session: &Self::Session) -> bool;
+
+    /// Handles one message; the reply may borrow from `message` or `out`.
+    /// `out` holds [`Limits::response_capacity`] bytes. The answer may take
+    /// a while (an autopilot's acknowledgement); other connections are
+    /// served meanwhile, and this one's later messages wait their turn.
+    /// Never [`Outcome::Pending`].
+    fn handle<'o>(
+        &'o self,
+        session: &'o mut Self::Session,
+        message: Message<'o>,
+        out: &'o mut [u8],
+    ) -> impl Future<Output = Outcome<'o>> + Send + 'o;
+
+    /// The connection of `session` has ended.
+    fn closed(&self, session: Self::Session) {
+        let _ = session;
+    }
+}
+
+/// Echoes every text message back unchanged and otherwise follows the
+/// core's close policy ([`Message::text`]: binary → 1003, oversized →
+/// 1009). Used to run the Autobahn|Testsuite against this module's
+/// connection code.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Echo;
+
+impl Handler for Echo {
+    type Session = ();
+
+    fn session(&self, _: SocketAddr) {}
+
+    fn admitted(&self, _: &()) -> bool {
+        true
+    }
+
+    async fn handle<'o>(&'o self, _: &'o mut (), message: Message<'o>, _: &'o mut [u8]) -> Outcome<'o> {
+        match message.text() {
+            Ok(text) => Outcome::Reply(text),
+            Err(code) => Outcome::Close(code),
+        }
+    }
+}
+
+/// Connection limits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest message (and frame) accepted, in bytes; larger closes with 1009.
+    pub max_message: usize,
+    /// Most sessions served at once; more are refused with HTTP 503 (after
+    /// reclaiming sessions that have not logged in).
+    pub max_connections: usize,
+    /// Most sessions from one client address.
+    pub max_sessions_per_ip: usize,
+    /// Most handshakes in progress at once; beyond it the oldest is dropped.
+    pub max_handshakes: usize,
+    /// Most handshakes in progress from one client address.
+    pub max_handshakes_per_ip: usize,
+    /// Time from accept to a complete request head (TLS included).
+    pub handshake_timeout: Duration,
+    /// With a password configured, a session not logged in after this long
+    /// is closed with 1008; pings do not extend it.
+    pub login_timeout: Duration,
+    /// A connection that sends nothing for this long is closed.
+    pub idle_timeout: Duration,
+    /// Bytes of the per-connection response buffer.
+    pub response_capacity: usize,
+    /// Time allowed for a peer to take one reply or answer a close.
+    pub io_timeout: Duration,
+    /// At shutdown, time allowed for connections to finish before they are
+    /// dropped.
+    pub shutdown_grace: Duration,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_message: 64 * 1024,
+            max_connections: 256,
+            max_sessions_per_ip: 8,
+            max_handshakes: 128,
+            max_handshakes_per_ip: 8,
+            handshake_timeout: Duration::from_secs(5),
+            login_timeout: Duration::from_secs(10),
+            idle_timeout: Duration::from_secs(300),
+            response_capacity: 64 * 1024,
+            io_timeout: Duration::from_secs(10),
+            shutdown_grace: Duration::from_secs(10),
+        }
+    }
+}
