@@ -472,6 +472,16 @@ impl Conn {
         Ok(Conn { ws })
     }
 
+    /// Connects to the `ws://` daemon at `addr` from the loopback address
+    /// `source`, or says why not.
+    pub async fn connect_from(source: IpAddr, addr: SocketAddr) -> Result<Conn, String> {
+        let tcp = tcp_from(source, addr).await.map_err(|e| e.to_string())?;
+        let (ws, _) = tokio_tungstenite::client_async(format!("ws://{addr}"), Transport::Plain(tcp))
+            .await
+            .map_err(|e| e.to_string())?;
+        Ok(Conn { ws })
+    }
+
     /// Connects and logs in with `password`, asserting success.
     pub async fn login(url: &str, password: &str) -> Conn {
         let mut c = Conn::connect(url).await;
