@@ -4,11 +4,16 @@
 //!
 //! Handshakes in progress live in their own bounded pool, never in a
 //! session slot. When that pool (or one address's share of it) is full,
-//! the OLDEST pending handshake is dropped, not the newcomer: a swarm of
-//! half-open connections then only ever delays a real client by the time
-//! it takes to open as many new ones. A session slot held by a client that
-//! has not logged in (when a password is configured) is reclaimed, oldest
-//! first, when a newcomer needs it; logged-in sessions are never displaced.
+//! an OLD pending handshake is dropped, not the newcomer: the oldest one of
+//! the address that holds the most. A swarm of half-open connections that
+//! reopens whatever is dropped then churns through its own handshakes,
+//! not through those of an address with fewer pending (the operator's
+//! single one). A session slot held by a client that has not logged in
+//! (when a password is configured) is reclaimed the same way when a
+//! newcomer needs it; logged-in sessions are never displaced.
+//!
+//! An address is an IPv4 address, or an IPv6 /64 (one host usually has a
+//! whole /64 to pick from).
 //!
 //! Every slot is a guard: dropping a [`Pending`] or [`Held`] frees it, so
 //! no path out of a connection task can leak one. A dropped or reclaimed
@@ -102,12 +107,44 @@ impl Inner {
         Some(live.ip)
     }
 
-    /// The oldest session not logged in, from `ip` if given.
-    fn oldest_unadmitted(&self, ip: Option<IpAddr>) -> Option<u64> {
-        self.sessions
+    /// The oldest pending handshake of the address holding the most.
+    fn handshake_to_drop(&self) -> Option<u64> {
+        let most = self.per_ip.values().map(|c| c.handshakes).max()?;
+        self.handshakes
             .iter()
-            .find(|(_, s)| ip.is_none_or(|ip| s.ip == ip) && !s.admitted.load(Ordering::Relaxed))
+            .find(|(_, w)| self.per_ip.get(&w.ip).is_some_and(|c| c.handshakes == most))
             .map(|(id, _)| *id)
+    }
+
+    /// The session not logged in to reclaim: from `ip` if given, else from
+    /// the address holding the most such sessions; its oldest.
+    fn session_to_reclaim(&self, ip: Option<IpAddr>) -> Option<u64> {
+        let unadmitted = || self.sessions.iter().filter(|(_, s)| !s.admitted.load(Ordering::Relaxed));
+        let from = match ip {
+            Some(ip) => ip,
+            None => {
+                let mut counts: HashMap<IpAddr, usize> = HashMap::new();
+                for (_, s) in unadmitted() {
+                    *counts.entry(s.ip).or_default() += 1;
+                }
+                let most = counts.values().copied().max()?;
+                return unadmitted()
+                    .find(|(_, s)| counts.get(&s.ip) == Some(&most))
+                    .map(|(id, _)| *id);
+            }
+        };
+        unadmitted().find(|(_, s)| s.ip == from).map(|(id, _)| *id)
+    }
+}
+
+/// The address limits apply to: IPv4 addresses as they are, IPv6 by /64.
+fn address(ip: IpAddr) -> IpAddr {
+    match ip.to_canonical() {
+        IpAddr::V6(v6) => {
+            let bits = u128::from(v6) & !((1u128 << 64) - 1);
+            IpAddr::V6(std::net::Ipv6Addr::from(bits))
+        }
+        v4 => v4,
     }
 }
 
@@ -172,6 +209,7 @@ impl Slots {
     /// A place in the handshake pool for a connection from `ip`, and the
     /// addresses of the handshakes dropped to make room.
     pub fn begin(self: &Arc<Self>, ip: IpAddr) -> (Pending, Vec<IpAddr>) {
+        let ip = address(ip);
         let mut inner = self.lock();
         let mut dropped = Vec::new();
         if inner.counts(ip).handshakes >= self.capacity.handshakes_per_ip {
@@ -183,10 +221,10 @@ impl Slots {
             dropped.extend(oldest.and_then(|id| inner.drop_handshake(id)));
         }
         while inner.handshakes.len() >= self.capacity.handshakes {
-            let Some(oldest) = inner.handshakes.keys().next().copied() else {
+            let Some(victim) = inner.handshake_to_drop() else {
                 break;
             };
-            dropped.extend(inner.drop_handshake(oldest));
+            dropped.extend(inner.drop_handshake(victim));
         }
         let id = inner.next;
         inner.next += 1;
@@ -211,15 +249,16 @@ impl Slots {
     /// oldest session not logged in if the address's share or the whole
     /// pool is full; returns the reclaimed session's address.
     pub fn admit(self: &Arc<Self>, pending: Pending, ip: IpAddr) -> Result<(Held, Option<IpAddr>), Full> {
+        let ip = address(ip);
         let mut inner = self.lock();
         inner.drop_handshake(pending.id);
         let mut reclaimed = None;
         if inner.counts(ip).sessions >= self.capacity.sessions_per_ip {
-            let id = inner.oldest_unadmitted(Some(ip)).ok_or(Full::Address)?;
+            let id = inner.session_to_reclaim(Some(ip)).ok_or(Full::Address)?;
             reclaimed = inner.drop_session(id);
         }
         if inner.sessions.len() >= self.capacity.sessions {
-            let id = inner.oldest_unadmitted(None).ok_or(Full::Server)?;
+            let id = inner.session_to_reclaim(None).ok_or(Full::Server)?;
             reclaimed = inner.drop_session(id);
         }
         let id = inner.next;
@@ -278,6 +317,26 @@ mod tests {
     }
 
     #[test]
+    fn a_full_handshake_pool_drops_from_the_address_holding_the_most() {
+        let s = slots();
+        let (_operator, _) = s.begin(ip(1));
+        let (_a, _) = s.begin(ip(2));
+        let (_b, _) = s.begin(ip(2));
+        let (_c, dropped) = s.begin(ip(3));
+        assert_eq!(dropped, vec![ip(2)], "not the operator's older one");
+    }
+
+    #[test]
+    fn ipv6_clients_are_counted_by_their_64_bit_prefix() {
+        let s = slots();
+        let v6 = |last: u16| IpAddr::V6(std::net::Ipv6Addr::new(0x2001, 0xdb8, 0, 1, 0, 0, 0, last));
+        let (_a, _) = s.begin(v6(1));
+        let (_b, _) = s.begin(v6(2));
+        let (_c, dropped) = s.begin(v6(3));
+        assert_eq!(dropped.len(), 1, "one /64 holds at most its share: {dropped:?}");
+    }
+
+    #[test]
     fn one_address_holds_at_most_its_share_of_the_handshake_pool() {
         let s = slots();
         let (_a, _) = s.begin(ip(1));
@@ -300,7 +359,7 @@ mod tests {
         let (_b, _) = session(2).expect("room");
         let (_c, _) = session(3).expect("room");
         let (d, reclaimed) = session(4).expect("reclaims the oldest not logged in");
-        assert_eq!(reclaimed, Some(ip(2)));
+        assert_eq!(reclaimed, Some(address(ip(2))));
         d.admit();
         let (e, reclaimed) = session(5).expect("reclaims the next");
         assert_eq!(reclaimed, Some(ip(3)));
