@@ -39,6 +39,7 @@ use tokio_rustls::client::TlsStream;
 use tokio_tungstenite::WebSocketStream;
 use tokio_tungstenite::tungstenite::Message as WsMessage;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 
 /// The protocol's default server address.
 pub const DEFAULT_URL: &str = "ws://127.0.0.1:53001";
@@ -248,6 +249,15 @@ fn tls_connector(options: &ConnectOptions) -> Result<TlsConnector, ClientError> 
 /// Opens a WebSocket to `url` (`ws://` or `wss://`); the building block of
 /// [`Client::connect_with`], for clients that speak raw frames.
 pub async fn open(url: &str, options: &ConnectOptions) -> Result<WebSocketStream<Transport>, ClientError> {
+    open_with_config(url, options, None).await
+}
+
+/// [`open`] with tungstenite's settings (buffer sizes, limits).
+pub async fn open_with_config(
+    url: &str,
+    options: &ConnectOptions,
+    config: Option<WebSocketConfig>,
+) -> Result<WebSocketStream<Transport>, ClientError> {
     use tokio_tungstenite::tungstenite::Error as WsError;
     let failed = |e: WsError| ClientError::Connect {
         url: url.to_owned(),
@@ -281,7 +291,7 @@ pub async fn open(url: &str, options: &ConnectOptions) -> Result<WebSocketStream
     } else {
         Transport::Plain(tcp)
     };
-    let (ws, _) = tokio_tungstenite::client_async(request, transport)
+    let (ws, _) = tokio_tungstenite::client_async_with_config(request, transport, config)
         .await
         .map_err(failed)?;
     Ok(ws)

@@ -43,13 +43,17 @@ use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt, stream};
 use hdrhistogram::Histogram;
+use lluav_host::client::{ConnectOptions, Transport};
 use lluav_tests::{Lluavd, Options, WAIT};
+
+#[path = "load/attacks.rs"]
+mod attacks;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Barrier;
 use tokio::time::timeout;
+use tokio_tungstenite::WebSocketStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
-use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 const PASSWORD: &str = "bench";
 
@@ -65,7 +69,7 @@ const CONNECT_CONCURRENCY: usize = 64;
 /// [`WAIT`] anyway.
 const MAX_LATENCY_NS: u64 = 120_000_000_000;
 
-type Ws = WebSocketStream<MaybeTlsStream<TcpStream>>;
+type Ws = WebSocketStream<Transport>;
 
 /// Why a run failed.
 #[derive(Debug)]
@@ -112,6 +116,8 @@ struct Args {
     /// Also load `lluavd --echo`: lluavd's connection code with its echo
     /// handler, to split lluavd's cost into transport and protocol.
     lluavd_echo: bool,
+    /// The scenarios of `load/attacks.rs` instead of the echo comparison.
+    scenarios: attacks::Scenarios,
 }
 
 impl Args {
@@ -126,6 +132,7 @@ impl Args {
             serve_echo: false,
             echo_default_buffers: false,
             lluavd_echo: false,
+            scenarios: attacks::Scenarios::default(),
         };
         let mut it = std::env::args().skip(1);
         while let Some(arg) = it.next() {
@@ -150,12 +157,18 @@ impl Args {
                 "--serve-echo" => args.serve_echo = true,
                 "--echo-default-buffers" => args.echo_default_buffers = true,
                 "--lluavd-echo" => args.lluavd_echo = true,
+                "--attacks" => args.scenarios.attacks = true,
+                "--tls" => args.scenarios.tls = true,
+                "--guesses" => args.scenarios.guesses = true,
+                "--seconds" => args.scenarios.seconds = number("--seconds", &value("--seconds")?)?,
+                "--baseline-lluavd" => args.scenarios.baseline = Some(value("--baseline-lluavd")?.into()),
                 // cargo bench passes --bench to every bench binary.
                 "--bench" => {}
                 other => {
                     return Err(BenchError::Usage(format!(
                         "unknown argument {other}; \
-                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers] [--lluavd-echo]"
+                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers] [--lluavd-echo] \
+                         [--attacks] [--tls] [--guesses [--baseline-lluavd PATH]] [--seconds S]"
                     )));
                 }
             }
@@ -182,6 +195,8 @@ fn main() {
     let result = Args::parse().and_then(|args| {
         if args.serve_echo {
             serve_echo(args.echo_default_buffers)
+        } else if args.scenarios.any() {
+            attacks::run(&args)
         } else {
             bench(&args)
         }
@@ -215,18 +230,16 @@ struct Servers {
 impl Servers {
     fn start(max_connections: usize, args: &Args) -> Result<Servers, BenchError> {
         let dir = tempfile::tempdir().map_err(|e| BenchError::Process(format!("temp dir: {e}")))?;
-        let mut options = Options::password(PASSWORD);
-        options.args = vec!["--max-connections".into(), max_connections.to_string()];
+        let options = Options::password(PASSWORD)
+            .per_ip(max_connections)
+            .with_args(&["--max-connections", &max_connections.to_string()]);
         let lluavd = Lluavd::start(dir.path(), &options);
         let lluavd_echo = args.lluavd_echo.then(|| {
-            let options = Options {
-                args: vec![
-                    "--echo".into(),
-                    "--max-connections".into(),
-                    max_connections.to_string(),
-                ],
-                ..Options::default()
-            };
+            let options = Options::default().per_ip(max_connections).with_args(&[
+                "--echo",
+                "--max-connections",
+                &max_connections.to_string(),
+            ]);
             Lluavd::start(&dir.path().join("echo"), &options)
         });
         let echo = EchoServer::start(args.echo_default_buffers)?;
@@ -418,11 +431,17 @@ impl Target {
 }
 
 async fn connect(url: &str, target: Target) -> Result<Ws, BenchError> {
-    // Nagle off, as lluavd and the echo server have it: small request and
-    // reply frames must not wait for delayed ACKs.
-    let (mut ws, _) = timeout(
+    // Nagle off (the client sets it), as lluavd and the echo server have
+    // it: small request and reply frames must not wait for delayed ACKs.
+    // `wss://` is lluavd with a certificate from the test CA.
+    let options = if url.starts_with("wss://") {
+        lluav_tests::test_ca().options()
+    } else {
+        ConnectOptions::default()
+    };
+    let mut ws = timeout(
         WAIT,
-        tokio_tungstenite::connect_async_with_config(url, Some(transport_config()), true),
+        lluav_host::client::open_with_config(url, &options, Some(transport_config())),
     )
     .await
     .map_err(|_| BenchError::Timeout("WebSocket handshake"))?

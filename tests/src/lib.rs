@@ -89,6 +89,8 @@ pub struct Options {
     pub sim_speed: Option<f64>,
     /// Serve `wss://` with a certificate from [`test_ca`].
     pub tls: bool,
+    /// Another `lluavd` binary than [`lluavd_bin`] (a baseline build).
+    pub binary: Option<PathBuf>,
     /// Any further arguments.
     pub args: Vec<String>,
 }
@@ -154,7 +156,7 @@ impl Lluavd {
         options: &Options,
         first: &[&str],
     ) -> Result<Lluavd, (Option<ExitStatus>, String)> {
-        let mut cmd = Command::new(lluavd_bin());
+        let mut cmd = Command::new(options.binary.as_deref().unwrap_or_else(|| lluavd_bin()));
         cmd.args(first);
         if !first.contains(&"--bind") {
             cmd.args(["--bind", "127.0.0.1:0"]);

@@ -119,7 +119,11 @@ impl Inner {
     /// The session not logged in to reclaim: from `ip` if given, else from
     /// the address holding the most such sessions; its oldest.
     fn session_to_reclaim(&self, ip: Option<IpAddr>) -> Option<u64> {
-        let unadmitted = || self.sessions.iter().filter(|(_, s)| !s.admitted.load(Ordering::Relaxed));
+        let unadmitted = || {
+            self.sessions
+                .iter()
+                .filter(|(_, s)| !s.admitted.load(Ordering::Relaxed))
+        };
         let from = match ip {
             Some(ip) => ip,
             None => {
