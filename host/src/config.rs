@@ -77,7 +77,7 @@ pub struct Cli {
     #[arg(long, value_name = "SECS")]
     pub login_lockout: Option<u64>,
     /// A web origin allowed to open sessions besides pages served by this
-    /// server (e.g. https://gcs.example:8443); `*` allows any. Repeatable.
+    /// server (e.g. `https://gcs.example:8443`); `*` allows any. Repeatable.
     #[arg(long, value_name = "URL")]
     pub allow_origin: Vec<String>,
     /// A host name clients may reach this server by, besides its address

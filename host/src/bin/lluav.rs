@@ -117,26 +117,52 @@ fn print_response(response: &Response) {
     }
 }
 
-fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
+/// The line editor with completion, and the history loaded from `history`.
+fn editor(history: Option<&PathBuf>) -> rustyline::Result<Editor<Commands, DefaultHistory>> {
     // Bash-like: Tab completes the common prefix, a second Tab lists the
     // candidates with their usage lines.
     let config = Config::builder().completion_type(CompletionType::List).build();
-    let mut editor: Editor<Commands, DefaultHistory> = match Editor::with_config(config) {
-        Ok(e) => e,
-        Err(e) => {
-            eprintln!("lluav: cannot start the line editor: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
+    let mut editor = Editor::with_config(config)?;
     editor.set_helper(Some(Commands));
-    let history = history_file();
-    if let Some(path) = &history {
+    if let Some(path) = history {
         if let Some(dir) = path.parent() {
             let _ = std::fs::create_dir_all(dir);
         }
         // No history yet is the normal first run.
         let _ = editor.load_history(path);
     }
+    Ok(editor)
+}
+
+/// Sends one line of the interactive session and prints the answer;
+/// drops the connection after a transport error (the next line reconnects).
+fn send_line(runtime: &Runtime, cli: &Cli, client: &mut Option<Client>, line: &str) {
+    let reply = runtime.block_on(async {
+        let c = match client {
+            Some(c) => c,
+            None => client.insert(connect(cli).await?),
+        };
+        c.send_line(line).await
+    });
+    match reply {
+        Ok(response) => print_response(&response),
+        Err(e @ ClientError::Parse(_)) => eprintln!("{e}"),
+        Err(e) => {
+            eprintln!("lluav: {e}; the next command reconnects");
+            *client = None;
+        }
+    }
+}
+
+fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
+    let history = history_file();
+    let mut editor = match editor(history.as_ref()) {
+        Ok(e) => e,
+        Err(e) => {
+            eprintln!("lluav: cannot start the line editor: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     let mut client = match runtime.block_on(connect(cli)) {
         Ok(c) => Some(c),
         Err(e) => {
@@ -172,23 +198,7 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
             ("quit" | "exit", _) => break,
             ("help", "") => print_table(),
             ("help", name) => print_command(name),
-            _ => {
-                let reply = runtime.block_on(async {
-                    let c = match &mut client {
-                        Some(c) => c,
-                        None => client.insert(connect(cli).await?),
-                    };
-                    c.send_line(line).await
-                });
-                match reply {
-                    Ok(response) => print_response(&response),
-                    Err(e @ ClientError::Parse(_)) => eprintln!("{e}"),
-                    Err(e) => {
-                        eprintln!("lluav: {e}; the next command reconnects");
-                        client = None;
-                    }
-                }
-            }
+            _ => send_line(runtime, cli, &mut client, line),
         }
     }
     if let Some(path) = &history

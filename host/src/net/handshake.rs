@@ -1,7 +1,7 @@
 //! The HTTP request head of a new connection, read and judged here rather
 //! than inside the WebSocket library: bounded in size, parsed with
 //! httparse, checked against RFC 6455 (section 4.2.1) and the
-//! [`Policy`](super::policy::Policy), and answered by us — `101` and the
+//! [`Policy`], and answered by us — `101` and the
 //! stream goes on to the WebSocket layer, anything else is answered and
 //! closed. A request that is not an upgrade goes to the console and never
 //! reaches the protocol.
