@@ -73,6 +73,9 @@ pub fn host(request: &[u8], frames: &[u8]) -> Vec<u8> {
                     max_message: 4096,
                     ..Default::default()
                 },
+                // UPGRADE names the server `drone`: allowed, so that
+                // frames reach the connection code.
+                policy: lluav_host::net::Policy::new(&[], &["drone".to_owned()]).expect("a valid host name"),
                 ..Default::default()
             };
             let handler = Arc::new(lluav_host::net::Echo);
