@@ -16,18 +16,18 @@ use std::sync::Arc;
 
 use futures_util::{FutureExt, SinkExt, StreamExt};
 use lluav_core::{CloseCode, Message, Outcome};
-use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{Notify, watch};
 use tokio::time::{Instant, Sleep, timeout};
 use tokio_tungstenite::WebSocketStream;
 use tokio_tungstenite::tungstenite::protocol::frame::CloseFrame;
 use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode as WsCloseCode;
 use tokio_tungstenite::tungstenite::{Error as WsError, Message as WsMessage};
-use tracing::{debug, info, warn};
+use tracing::{debug, warn};
 
 use super::report::{Offence, Reports};
 use super::slots::Held;
-use super::{Handler, Limits};
+use super::{Handler, LINGER, Limits};
 
 /// Frames a connection answers at shutdown if they had already arrived:
 /// enough for any honest pipeline, bounded so that a client streaming
@@ -122,6 +122,7 @@ pub struct Connection<'h, S, H: Handler> {
     peer: SocketAddr,
     slot: Option<Held>,
     admitted: bool,
+    reports: &'h Reports,
 }
 
 impl<'h, S, H> Connection<'h, S, H>
@@ -136,6 +137,7 @@ where
         peer: SocketAddr,
         limits: Limits,
         slot: Option<Held>,
+        reports: &'h Reports,
     ) -> Self {
         let session = handler.session(peer);
         Connection {
@@ -148,13 +150,14 @@ where
             peer,
             slot,
             admitted: false,
+            reports,
         }
     }
 
     /// Serves the session until it ends: the peer closes, a close code, an
     /// idle or login timeout, reclaiming, or `stop` turning true (shutdown:
     /// answer what already arrived, then close with 1001).
-    pub async fn run(mut self, mut stop: watch::Receiver<bool>, reports: &Reports) {
+    pub async fn run(mut self, mut stop: watch::Receiver<bool>) {
         let cancel = self
             .slot
             .as_ref()
@@ -190,7 +193,7 @@ where
                 Event::Ended => Flow::Done,
                 Event::Idle => Flow::Close(WsCloseCode::Normal, "idle timeout"),
                 Event::LoginTimeout => {
-                    reports.note(self.peer.ip(), Offence::LoginTimeout);
+                    self.reports.note(self.peer.ip(), Offence::LoginTimeout);
                     Flow::Close(WsCloseCode::Policy, "no login in time")
                 }
                 Event::End(End::Reclaimed) => {
@@ -314,6 +317,9 @@ where
                 }
             }
         }
+        if code == Some(CloseCode::Policy) {
+            self.reports.note(self.peer.ip(), Offence::WrongPasswords);
+        }
         code.map_or(Flow::Continue, |code| Flow::Close(ws_code(code), ""))
     }
 
@@ -337,12 +343,9 @@ where
     /// the close handshake completes; what the peer sends meanwhile is
     /// discarded.
     async fn close(&mut self, code: WsCloseCode, reason: &'static str) {
-        // Closes other than normal ones say something about a client (a
-        // broken one, or a password guesser).
-        match code {
-            WsCloseCode::Normal | WsCloseCode::Away => debug!(peer = %self.peer, %code, "closing"),
-            _ => info!(peer = %self.peer, %code, reason, "closing"),
-        }
+        // Offenders are reported (once a minute) where the offence is
+        // seen; a line per close would let a client flood the log.
+        debug!(peer = %self.peer, %code, reason, "closing");
         let frame = CloseFrame {
             code,
             reason: reason.into(),
@@ -355,6 +358,16 @@ where
             while let Some(Ok(_)) = ws.next().await {}
         };
         let _ = timeout(CLOSE_HANDSHAKE_TIMEOUT, handshake).await;
+        // A peer still sending (the rest of an oversized message) would get
+        // a reset instead of the close frame if the socket closed with its
+        // bytes unread: end our side, then read on briefly.
+        let stream = self.ws.get_mut();
+        let _ = timeout(LINGER, async {
+            let _ = stream.shutdown().await;
+            let mut sink = [0u8; 4096];
+            while let Ok(1..) = stream.read(&mut sink).await {}
+        })
+        .await;
     }
 }
 

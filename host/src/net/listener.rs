@@ -23,16 +23,11 @@ use super::connection::Connection;
 use super::handshake::{self, HeadError, Refusal, Request};
 use super::report::{Offence, Reports};
 use super::slots::{Capacity, Full, Held, Pending, Slots};
-use super::{Handler, Limits, Policy};
+use super::{Handler, LINGER, Limits, Policy};
 
 /// Bytes of replies a connection gathers before writing them to the socket
 /// (it also writes whenever no further request is waiting).
 const WRITE_BUFFER: usize = 64 * 1024;
-
-/// After refusing a request, how long the rest of what the client sent is
-/// read and discarded, so that closing does not reset the connection before
-/// the client has read the answer.
-const LINGER: Duration = Duration::from_secs(1);
 
 /// Everything a listener serves with.
 #[derive(Clone, Default)]
@@ -273,8 +268,8 @@ async fn session<S, H>(
     let limits = shared.config.limits;
     let config = websocket_config(&limits);
     let ws = WebSocketStream::from_partially_read(stream, leftover, Role::Server, Some(config)).await;
-    Connection::new(ws, &*shared.handler, peer, limits, Some(slot))
-        .run(stop, &shared.reports)
+    Connection::new(ws, &*shared.handler, peer, limits, Some(slot), &shared.reports)
+        .run(stop)
         .await;
 }
 

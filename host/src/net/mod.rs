@@ -88,6 +88,11 @@ impl Handler for Echo {
     }
 }
 
+/// After refusing a request or closing a session, how long the rest of what
+/// the client sent is read and discarded, so that closing does not reset
+/// the connection before the client has read the answer.
+const LINGER: Duration = Duration::from_secs(1);
+
 /// Connection limits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Limits {

@@ -35,6 +35,8 @@ pub enum Offence {
     LoginTimeout,
     /// Its session, not logged in, was closed to make room for a newcomer.
     SessionReclaimed,
+    /// Sent wrong passwords until its session was closed (1008).
+    WrongPasswords,
 }
 
 impl fmt::Display for Offence {
@@ -48,6 +50,7 @@ impl fmt::Display for Offence {
             Offence::ServerFull => "every session slot is taken; refused (503)",
             Offence::LoginTimeout => "no login within the deadline; closed (1008)",
             Offence::SessionReclaimed => "session not logged in; closed to make room (1008)",
+            Offence::WrongPasswords => "wrong passwords; session closed (1008)",
         })
     }
 }
