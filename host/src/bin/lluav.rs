@@ -97,17 +97,31 @@ async fn connect(cli: &Cli) -> Result<Client, ClientError> {
     };
     let mut client = Client::connect_with(&cli.url, &options)
         .await
-        .map_err(|e| match e {
-            ClientError::Connect { url, source } => ClientError::Connect {
-                url: format!("{url} (is lluavd running?)"),
-                source,
-            },
-            other => other,
-        })?;
+        .map_err(with_hint)?;
     if let Some(password) = &cli.password {
         client.login(password).await?.check()?;
     }
     Ok(client)
+}
+
+/// Adds what to check to a connection failure: whether lluavd runs, or
+/// which certificate to trust.
+fn with_hint(e: ClientError) -> ClientError {
+    use tokio_tungstenite::tungstenite::Error as WsError;
+    let ClientError::Connect { url, source } = e else {
+        return e;
+    };
+    let hint = match &*source {
+        WsError::Io(io) if io.kind() == std::io::ErrorKind::ConnectionRefused => " (is lluavd running?)",
+        WsError::Io(io) if io.to_string().contains("certificate") => {
+            " (a self-signed server certificate needs --cafile FILE)"
+        }
+        _ => "",
+    };
+    ClientError::Connect {
+        url: format!("{url}{hint}"),
+        source,
+    }
 }
 
 fn print_response(response: &Response) {
