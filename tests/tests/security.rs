@@ -244,6 +244,7 @@ fn lluav_speaks_wss_with_a_cafile_and_refuses_an_unknown_certificate() {
         stderr.to_lowercase().contains("certificate"),
         "says why: {stderr}"
     );
+    assert!(stderr.contains("--cafile"), "and what to do: {stderr}");
 }
 
 #[test]
