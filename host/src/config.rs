@@ -397,6 +397,57 @@ mod tests {
     }
 
     #[test]
+    fn network_limits_and_lists_come_from_flags_over_the_file() {
+        let file: FileConfig = toml::from_str(
+            "max_sessions_per_ip = 3\nlogin_timeout = 7\nallow_host = [\"drone.local\"]\n\
+             allow_origin = [\"https://gcs.example\"]\nlogin_lockout = 5\n",
+        )
+        .expect("valid TOML");
+        let s = Settings::merge(
+            cli(&[
+                "--data-dir",
+                "/tmp/x",
+                "--max-sessions-per-ip",
+                "4",
+                "--handshake-timeout",
+                "2",
+            ]),
+            file,
+        )
+        .expect("valid");
+        assert_eq!(s.limits.max_sessions_per_ip, 4);
+        assert_eq!(s.limits.login_timeout, Duration::from_secs(7));
+        assert_eq!(s.limits.handshake_timeout, Duration::from_secs(2));
+        assert_eq!(s.login_lockout, Duration::from_secs(5));
+        let loopback = std::net::IpAddr::V4(Ipv4Addr::LOCALHOST);
+        assert!(
+            s.policy
+                .check("drone.local", Some("https://gcs.example"), loopback, true)
+                .is_ok()
+        );
+        assert!(s.tls.is_none());
+    }
+
+    #[test]
+    fn unusable_network_settings_are_refused() {
+        let refused = |args: &[&str], file: &str| {
+            let mut all = vec!["--data-dir", "/tmp/x"];
+            all.extend_from_slice(args);
+            let file: FileConfig = toml::from_str(file).expect("valid TOML");
+            Settings::merge(cli(&all), file).is_err()
+        };
+        assert!(refused(&["--allow-origin", "evil.example"], ""));
+        assert!(refused(&["--allow-host", "drone.local:80"], ""));
+        assert!(refused(&["--max-sessions-per-ip", "0"], ""));
+        assert!(refused(&["--login-timeout", "0"], ""));
+        assert!(
+            refused(&[], "tls_cert = \"cert.pem\""),
+            "a certificate needs its key"
+        );
+        assert!(Cli::try_parse_from(["lluavd", "--tls-key", "key.pem"]).is_err());
+    }
+
+    #[test]
     fn unknown_config_fields_are_refused() {
         assert!(toml::from_str::<FileConfig>("pasword = \"x\"").is_err());
     }
