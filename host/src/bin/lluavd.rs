@@ -93,7 +93,7 @@ async fn serve<V: Vehicle>(
             return ExitCode::FAILURE;
         }
     };
-    warn_about_public_admin_value(&settings);
+    warn_about_public_admin_value(settings);
     info!(%addr, data_dir = %settings.data_dir.display(), mavlink = settings.mavlink.as_deref().unwrap_or("-"), "lluavd ready");
     let mut stdout = std::io::stdout().lock();
     if writeln!(stdout, "listening on {}://{addr}", daemon.scheme())
