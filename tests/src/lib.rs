@@ -182,7 +182,7 @@ impl Lluavd {
         let stderr = Arc::new(Mutex::new(String::new()));
         let mut err_pipe = child.stderr.take().expect("stderr is piped");
         let sink = Arc::clone(&stderr);
-        std::thread::spawn(move || {
+        let stderr_reader = std::thread::spawn(move || {
             let mut buf = [0u8; 4096];
             while let Ok(n @ 1..) = err_pipe.read(&mut buf) {
                 let text = String::from_utf8_lossy(buf.get(..n).unwrap_or_default()).into_owned();
@@ -220,6 +220,10 @@ impl Lluavd {
                 if status.is_none() {
                     let _ = child.kill();
                     let _ = child.wait();
+                }
+                // The process is gone: its stderr ends, and the reader with it.
+                if status.is_some() {
+                    let _ = stderr_reader.join();
                 }
                 let text = stderr.lock().unwrap_or_else(|p| p.into_inner()).clone();
                 Err((status, format!("stdout: {line:?}\nstderr:\n{text}")))
