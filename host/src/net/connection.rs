@@ -364,7 +364,9 @@ where
         let stream = self.ws.get_mut();
         let _ = timeout(LINGER, async {
             let _ = stream.shutdown().await;
-            let mut sink = [0u8; 4096];
+            // On the heap: an array here would make every session's task
+            // this much larger for its whole life.
+            let mut sink = vec![0u8; 4096];
             while let Ok(1..) = stream.read(&mut sink).await {}
         })
         .await;

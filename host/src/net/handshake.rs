@@ -132,14 +132,13 @@ pub enum HeadError {
 /// head's length; bytes after it (a client that did not wait for the
 /// `101`) stay in `buf`. The caller bounds the time.
 pub async fn read_head<S: AsyncRead + Unpin>(stream: &mut S, buf: &mut Vec<u8>) -> Result<usize, HeadError> {
-    let mut chunk = [0u8; 2048];
     loop {
-        let n = match stream.read(&mut chunk).await {
-            Ok(0) | Err(_) => return Err(HeadError::Closed),
-            Ok(n) => n,
-        };
         let searched_from = buf.len().saturating_sub(3);
-        buf.extend_from_slice(chunk.get(..n).unwrap_or_default());
+        buf.reserve(2048);
+        match stream.read_buf(buf).await {
+            Ok(0) | Err(_) => return Err(HeadError::Closed),
+            Ok(_) => {}
+        }
         // Parse only once a blank line may have arrived: a client dripping
         // one byte at a time costs a scan of its new bytes, not a parse of
         // the whole head each time.

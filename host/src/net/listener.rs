@@ -170,13 +170,26 @@ async fn accept<H: Handler>(
         upgrade(tcp, peer, local.ip(), pending, deadline, &shared, stop).await;
         return;
     };
+    // Boxed: a TLS stream is kilobytes, and inline it would make every
+    // task that large, plain ones too (all tasks have one type).
     let tls = tokio::select! {
         biased;
         () = pending.cancel.notified() => return,
-        tls = timeout_at(deadline, acceptor.accept(tcp)) => tls,
+        tls = Box::pin(timeout_at(deadline, acceptor.accept(tcp))) => tls,
     };
     match tls {
-        Ok(Ok(stream)) => upgrade(stream, peer, local.ip(), pending, deadline, &shared, stop).await,
+        Ok(Ok(stream)) => {
+            Box::pin(upgrade(
+                stream,
+                peer,
+                local.ip(),
+                pending,
+                deadline,
+                &shared,
+                stop,
+            ))
+            .await
+        }
         Ok(Err(e)) => debug!(%peer, error = %e, "TLS handshake failed"),
         Err(_) => shared.reports.note(peer.ip(), Offence::HandshakeTimeout),
     }
@@ -250,6 +263,8 @@ async fn upgrade<S, H>(
     if !matches!(answered, Ok(Ok(()))) {
         return;
     }
+    // The head is not needed for the session's whole life.
+    drop(buf);
     session(stream, peer, leftover, slot, shared, stop).await;
 }
 
@@ -318,7 +333,7 @@ async fn answer_and_close<S: AsyncRead + AsyncWrite + Unpin>(
     if !matches!(wrote, Ok(Ok(()))) {
         return;
     }
-    let mut sink = [0u8; 1024];
+    let mut sink = vec![0u8; 1024];
     let _ = timeout(LINGER, async {
         while let Ok(1..) = stream.read(&mut sink).await {}
     })
