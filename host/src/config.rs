@@ -90,6 +90,9 @@ pub struct Cli {
     /// The PEM private key of --tls-cert.
     #[arg(long, value_name = "FILE", requires = "tls_cert")]
     pub tls_key: Option<PathBuf>,
+    /// Do not serve the browser console: plain HTTP requests get 404.
+    #[arg(long)]
+    pub no_console: bool,
     /// Serve a WebSocket echo instead of the protocol, through the same
     /// connection code: for the Autobahn|Testsuite only.
     #[arg(long, hide = true)]
@@ -138,6 +141,8 @@ pub struct FileConfig {
     pub tls_cert: Option<PathBuf>,
     /// As `--tls-key`.
     pub tls_key: Option<PathBuf>,
+    /// `false` as `--no-console`.
+    pub console: Option<bool>,
     /// The login value that grants admin (protocol default `1025`).
     pub admin_password: Option<String>,
     /// The login value that logs out (protocol default `0315`).
@@ -213,6 +218,8 @@ pub struct Settings {
     pub admin_password: String,
     /// The logout login value.
     pub logout_password: String,
+    /// Serve the browser console to plain HTTP requests.
+    pub console: bool,
     /// Serve the echo handler instead of the protocol.
     pub echo: bool,
 }
@@ -288,6 +295,7 @@ impl Settings {
             logout_password: file
                 .logout_password
                 .unwrap_or_else(|| lluav_core::session::DEFAULT_LOGOUT_PASSWORD.to_owned()),
+            console: !cli.no_console && file.console.unwrap_or(true),
             echo: cli.echo,
             mavlink,
         })
@@ -394,6 +402,19 @@ mod tests {
         assert_eq!(s.admin_password, "1025");
         assert_eq!(s.logout_password, "0315");
         assert!(!s.allow_no_password);
+        assert!(s.console);
+    }
+
+    #[test]
+    fn console_is_off_by_flag_or_config_key() {
+        let off: FileConfig = toml::from_str("console = false").expect("valid TOML");
+        let on: FileConfig = toml::from_str("console = true").expect("valid TOML");
+        let dir = ["--data-dir", "/tmp/x"];
+        assert!(!Settings::merge(cli(&dir), off).expect("valid").console);
+        assert!(Settings::merge(cli(&dir), on).expect("valid").console);
+        let flag = cli(&["--no-console", "--data-dir", "/tmp/x"]);
+        let on: FileConfig = toml::from_str("console = true").expect("valid TOML");
+        assert!(!Settings::merge(flag, on).expect("valid").console);
     }
 
     #[test]

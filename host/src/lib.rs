@@ -6,6 +6,7 @@
 //!   TLS, the HTTP upgrade and its Origin/Host policy, per-address limits,
 //!   framing, shutdown);
 //! - [`config`]: `lluavd`'s command line and config file;
+//! - [`console`]: the browser console, answered to plain HTTP requests;
 //! - [`client`]: the typed async client `lluav` is built on;
 //! - [`onboard`]: the daemon's backend, a [`companion`] computer and a
 //!   vehicle (the simulator, [`sim`]) composed;
@@ -16,6 +17,7 @@
 pub mod client;
 pub mod companion;
 pub mod config;
+pub mod console;
 pub mod daemon;
 pub mod mavlink;
 pub mod net;

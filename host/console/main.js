@@ -1,0 +1,285 @@
+// The console: connects, logs in, polls, and turns what the person does
+// into requests. What is shown lives in panels.js and plot.js; how requests
+// travel lives in protocol.js; what answers mean lives in vehicle.js.
+
+import { Client, commandName, defaultUrl } from './protocol.js';
+import { Plot } from './plot.js';
+import { byId, CommandLine, Confirm, Header, Log, Login, StatePanel } from './panels.js';
+import { altitudeOf, readCommands, readLogin, readMission, readState, setpointLine } from './vehicle.js';
+
+/** `state` every 200 ms: the server never pushes. */
+const STATE_EVERY_MS = 200;
+/** `mw_list` every 2 s. */
+const MISSION_EVERY_MS = 2000;
+/** Waits before reconnecting, growing with each failure. */
+const RECONNECT_MS = [500, 1000, 2000, 4000];
+/** Commands after which the mission is read again at once. */
+const MISSION_COMMANDS = new Set(['mission', 'mw_exec', 'ai1_mission', 'test_listwp', 'plan', 'unlock_plan']);
+
+class Console {
+  constructor() {
+    this.header = new Header();
+    this.panel = new StatePanel();
+    this.log = new Log();
+    this.login = new Login();
+    this.confirm = new Confirm();
+    this.commandLine = new CommandLine();
+    this.plot = new Plot(byId('plot'));
+    this.client = null;
+    this.url = defaultUrl(window.location);
+    /** The password that worked, kept in memory only, to log in again after a reconnect. */
+    this.password = null;
+    this.mustLogin = false;
+    this.state = null;
+    this.stateAt = null;
+    this.stateSentAt = null;
+    this.missionBusy = false;
+    this.missionSupported = true;
+    this.lastPollError = '';
+    this.failures = 0;
+    this.header.endpoint.textContent = this.url;
+    this.header.showRole(null);
+    this.#wire();
+    setInterval(() => this.#pollState(), STATE_EVERY_MS);
+    setInterval(() => this.#pollMission(), MISSION_EVERY_MS);
+    setInterval(() => this.#showAge(), 100);
+    this.#connect();
+  }
+
+  #wire() {
+    this.login.addEventListener('login', (ev) => this.#logIn(ev.detail));
+    this.commandLine.addEventListener('send', (ev) => this.run(ev.detail));
+    this.plot.addEventListener('pick', (ev) => this.#flyTo(ev.detail));
+    byId('takeoff').addEventListener('click', () => this.#takeoff());
+    byId('land').addEventListener('click', () => this.run('land'));
+    byId('rtl').addEventListener('click', () => this.run('rtl'));
+    byId('disarm').addEventListener('click', () => this.#disarm());
+    byId('fit').addEventListener('click', () => this.plot.fit());
+    byId('zoom-in').addEventListener('click', () => this.plot.zoom(1.25));
+    byId('zoom-out').addEventListener('click', () => this.plot.zoom(0.8));
+    byId('clear-track').addEventListener('click', () => this.plot.clearTrack());
+    this.header.logout.addEventListener('click', () => {
+      this.password = null;
+      this.client?.close();
+    });
+  }
+
+  async #connect() {
+    const client = new Client(this.url);
+    this.client = client;
+    this.header.connection('connecting');
+    client.addEventListener('close', (ev) => this.#closed(client, ev.detail));
+    client.addEventListener('stray', (ev) => this.log.note(`answer without a request: ${ev.detail}`, 'danger'));
+    try {
+      await client.connect();
+    } catch {
+      return; // #closed schedules the next try.
+    }
+    this.failures = 0;
+    this.header.connection('connected');
+    this.log.note(`connected to ${this.url}`, 'good');
+    await this.#start();
+  }
+
+  #closed(client, { code, reason }) {
+    if (client !== this.client) return;
+    const wait = RECONNECT_MS[Math.min(this.failures, RECONNECT_MS.length - 1)];
+    this.failures += 1;
+    this.header.connection('disconnected', `retry in ${(wait / 1000).toFixed(1)} s`);
+    this.header.showRole(null);
+    this.log.note(`disconnected (${code}: ${reason})`, 'danger');
+    this.stateSentAt = null;
+    setTimeout(() => this.#connect(), wait);
+  }
+
+  /** A new connection: find out whether it must log in, then start reading. */
+  async #start() {
+    let first;
+    try {
+      first = await this.client.request('state');
+    } catch {
+      return;
+    }
+    if (!first.needsLogin) {
+      this.mustLogin = false;
+      this.header.showRole('open');
+      this.#applyState(first);
+      await this.#afterLogin();
+    } else if (this.password !== null) {
+      await this.#logIn(this.password);
+    } else {
+      this.#needLogin('');
+    }
+  }
+
+  #needLogin(message) {
+    this.mustLogin = true;
+    this.header.showRole(null);
+    this.login.show(message);
+  }
+
+  async #logIn(password) {
+    let ex;
+    try {
+      ex = await this.client.request(`login ${password}`);
+    } catch (e) {
+      this.login.show(`No answer: ${e.message}`);
+      return;
+    }
+    this.log.exchange(ex);
+    const who = readLogin(ex.answer);
+    if (!ex.ok) {
+      this.password = null;
+      this.#needLogin(ex.msg || 'Login refused');
+      return;
+    }
+    if (!who.loggedIn) {
+      this.#needLogin('That value logs out. Enter the vehicle’s password.');
+      return;
+    }
+    this.password = password;
+    this.mustLogin = false;
+    this.login.hide();
+    this.header.showRole(who.admin ? 'admin' : 'user');
+    await this.#afterLogin();
+  }
+
+  /** Reads what only changes now and then: the command names, the mission. */
+  async #afterLogin() {
+    try {
+      const help = await this.client.request('help');
+      if (help.ok) this.commandLine.setCommands(readCommands(help.answer));
+    } catch {
+      // The connection went; the next one asks again.
+    }
+    this.missionSupported = true;
+    this.#pollMission();
+  }
+
+  #pollState() {
+    if (!this.client?.isOpen || this.mustLogin || this.stateSentAt !== null) return;
+    this.stateSentAt = performance.now();
+    this.client.request('state')
+      .then((ex) => this.#applyState(ex))
+      .catch(() => {})
+      .finally(() => { this.stateSentAt = null; });
+  }
+
+  #applyState(ex) {
+    if (ex.needsLogin) {
+      if (!this.login.shown) this.#needLogin('The session was logged out.');
+      return;
+    }
+    if (!ex.ok) {
+      const text = `state: ${ex.ret} ${ex.msg}`;
+      this.panel.showError(text);
+      if (text !== this.lastPollError) this.log.exchange(ex);
+      this.lastPollError = text;
+      return;
+    }
+    this.lastPollError = '';
+    this.panel.showError('');
+    const s = readState(ex.answer);
+    this.state = s;
+    this.stateAt = performance.now();
+    this.panel.show(s);
+    this.plot.setHome(s.home);
+    this.plot.setSetpoint(s.setpoint);
+    this.plot.setVehicle(s.position, s.yaw);
+    byId('takeoff').disabled = s.airborne === true;
+  }
+
+  #pollMission() {
+    if (!this.client?.isOpen || this.mustLogin || this.missionBusy || !this.missionSupported) return;
+    this.missionBusy = true;
+    this.client.request('mw_list')
+      .then((ex) => {
+        if (ex.ok) {
+          this.plot.setWaypoints(readMission(ex.answer).waypoints);
+        } else if (ex.ret === -2) {
+          // This vehicle keeps no mission list; stop asking.
+          this.missionSupported = false;
+          this.plot.setWaypoints([]);
+        }
+      })
+      .catch(() => {})
+      .finally(() => { this.missionBusy = false; });
+  }
+
+  #showAge() {
+    const now = performance.now();
+    this.header.showAge(
+      this.stateAt === null ? null : now - this.stateAt,
+      this.stateSentAt === null ? null : now - this.stateSentAt,
+    );
+  }
+
+  /** Sends a line the person asked for, logs it and its answer. */
+  async run(line) {
+    if (!this.client?.isOpen) {
+      this.log.failure(line, new Error('not connected'));
+      return null;
+    }
+    let ex;
+    try {
+      ex = await this.client.request(line);
+    } catch (e) {
+      this.log.failure(line, e);
+      return null;
+    }
+    this.log.exchange(ex);
+    const name = commandName(line);
+    if (name === 'login' && ex.ok) {
+      const who = readLogin(ex.answer);
+      this.header.showRole(who.loggedIn ? (who.admin ? 'admin' : 'user') : null);
+      if (who.loggedIn) this.password = line.slice(line.indexOf(' ') + 1).trim();
+    }
+    if (name === 'help' && ex.ok) this.commandLine.setCommands(readCommands(ex.answer));
+    if (ex.needsLogin) this.#needLogin('Log in to send commands.');
+    if (MISSION_COMMANDS.has(name)) this.#pollMission();
+    return ex;
+  }
+
+  async #takeoff() {
+    const sure = await this.confirm.ask({
+      title: 'Take off?',
+      text: 'The vehicle arms its motors and climbs to its takeoff altitude.',
+      command: 'takeoff',
+      ok: 'Take off',
+      danger: true,
+    });
+    if (sure) await this.run('takeoff');
+  }
+
+  async #disarm() {
+    const flying = this.state?.airborne === true;
+    const sure = await this.confirm.ask({
+      title: flying ? 'Disarm in the air?' : 'Disarm?',
+      text: flying
+        ? 'The vehicle is flying: disarming stops the motors and it falls. Use Land or RTL to come down.'
+        : 'The motors stop.',
+      command: 'disarm',
+      ok: 'Disarm',
+      danger: true,
+    });
+    if (sure) await this.run('disarm');
+  }
+
+  async #flyTo({ n, e }) {
+    if (this.state === null) {
+      this.log.note('No vehicle state yet: cannot pick a setpoint.', 'warn');
+      return;
+    }
+    const line = setpointLine(this.state, n, e);
+    const [, , down] = line.split(' ')[1].split(':').map(Number);
+    const sure = await this.confirm.ask({
+      title: 'Fly here?',
+      text: `North ${n.toFixed(1)} m, east ${e.toFixed(1)} m, at ${altitudeOf({ d: down }).toFixed(1)} m altitude, heading kept.`,
+      command: line,
+      ok: 'Fly here',
+    });
+    if (sure) await this.run(line);
+  }
+}
+
+new Console();

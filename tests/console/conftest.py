@@ -1,0 +1,75 @@
+"""Fixtures: a fresh lluavd per test, one headless Chromium per module."""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import shutil
+import threading
+
+import pytest
+
+from harness import ROOT, SCREENSHOTS, Lluavd, chromium, lluavd_binary
+from page import Page
+
+PASSWORD = "s3cret"
+
+
+@pytest.fixture(scope="session")
+def binary() -> str:
+    return lluavd_binary()
+
+
+@pytest.fixture
+def daemon(binary):
+    """lluavd with a password, the simulator at four times real speed."""
+    d = Lluavd(binary, "--password", PASSWORD, "--sim-speed", "4")
+    yield d
+    d.stop()
+
+
+@pytest.fixture
+def open_daemon(binary):
+    """lluavd without a password."""
+    d = Lluavd(binary, "--sim-speed", "4")
+    yield d
+    d.stop()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    driver = chromium()
+    yield driver
+    driver.quit()
+    shutil.rmtree(driver.profile_dir, ignore_errors=True)
+
+
+@pytest.fixture
+def page(browser, assets):
+    """The browser, on a blank page at the start; after the test, it fails
+    the test if the page logged an error (a script error, a CSP violation,
+    a failed load). Ask for it after the daemon so that it is checked
+    while the daemon still runs."""
+    browser.get("about:blank")
+    browser.get_log("browser")
+    p = Page(browser, assets)
+    yield p
+    severe = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+    browser.get("about:blank")
+    assert severe == [], f"the page logged errors: {severe}"
+
+
+@pytest.fixture(scope="session")
+def assets():
+    """The page's files served over HTTP from the checkout."""
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(ROOT / "host" / "console"))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    yield f"http://127.0.0.1:{server.server_address[1]}/"
+    server.shutdown()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def screenshots_dir():
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    return SCREENSHOTS

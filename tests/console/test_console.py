@@ -1,0 +1,213 @@
+"""The browser console in headless Chromium against a real lluavd."""
+
+from __future__ import annotations
+
+import json
+
+from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
+
+from conftest import PASSWORD
+from page import distance
+
+
+def log_in_and_take_off(page, daemon):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: not page.shown("login"), "the login form goes away")
+    page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows disarmed")
+    page.click("takeoff")
+    page.confirm("takeoff")
+    page.wait(lambda: page.text("fsm") == "HOVER", "the vehicle hovers after takeoff")
+
+
+def test_password_vehicle_asks_for_login_and_refuses_a_wrong_one(daemon, page):
+    page.open(daemon)
+    page.wait(lambda: page.shown("login"), "the login form shows")
+    assert page.el("main").get_attribute("inert") is not None, "the page behind the form is inert"
+    page.screenshot("login")
+    page.login("not-it")
+    page.wait(lambda: page.text("login-error") == "Wrong password!", "the refusal is shown")
+    assert page.shown("login")
+    page.login(PASSWORD)
+    page.wait(lambda: not page.shown("login"), "the login form goes away")
+    page.wait(lambda: page.text("role") == "user", "the role badge says user")
+    page.wait(lambda: page.text("fsm") == "DISARMED", "live state shows")
+    assert page.text("armed") == "disarmed"
+    assert page.text("battery").startswith("100")
+    entries = page.log_entries()
+    assert [e["request"] for e in entries[:2]] == ["login ••••", "login ••••"], "passwords are never shown"
+    assert PASSWORD not in page.text("log") and "not-it" not in page.text("log")
+
+
+def test_takeoff_confirms_then_the_fsm_changes(daemon, page):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows disarmed")
+    page.click("takeoff")
+    page.wait(lambda: page.shown("confirm"), "takeoff asks first")
+    page.click("confirm-cancel")
+    page.wait(lambda: not page.shown("confirm"), "the dialog closes")
+    assert page.log_entries()[0]["request"] != "takeoff", "cancel sends nothing"
+    page.click("takeoff")
+    page.confirm("takeoff")
+    page.wait(lambda: page.text("fsm") in ("TAKEOFF", "HOVER"), "the fsm leaves disarmed")
+    page.wait(lambda: page.text("armed") == "armed", "the vehicle is armed")
+    page.wait(lambda: page.text("fsm") == "HOVER", "the vehicle hovers")
+    assert page.text("airborne") == "airborne"
+    assert float(page.text("alt")) > 1.5
+    assert not page.el("takeoff").is_enabled(), "takeoff is off while flying"
+
+
+def test_click_on_the_plot_flies_the_vehicle_there(daemon, page):
+    log_in_and_take_off(page, daemon)
+    before = page.marker("vehicle-marker")
+    home = page.marker("home-marker")
+    assert distance(before, home) < 0.2
+    page.click_plot_at(4.0, 3.0)
+    command = page.confirm("set_sp_ned ")
+    n, e, d, _yaw = (float(v) for v in command.split(" ")[1].split(":"))
+    view_scale = page.view()["scale"]
+    assert abs(n - 4.0) < 2 / view_scale + 0.01 and abs(e - 3.0) < 2 / view_scale + 0.01, command
+    assert abs(d + 2.0) < 0.05, f"the setpoint keeps the current altitude: {command}"
+    page.wait(lambda: distance(page.marker("setpoint-marker"), {"n": n, "e": e}) < 0.05, "the setpoint marker moves there")
+    page.wait(lambda: distance(page.marker("vehicle-marker"), {"n": n, "e": e}) < 0.3, "the vehicle reaches the setpoint")
+    after = page.marker("vehicle-marker")
+    moved_px = distance(after, page.marker("home-marker"), keys=("x", "y"))
+    assert moved_px > 40, f"the marker moved away from home on screen ({moved_px:.0f} px)"
+    points = page.el("plot").find_element(By.CSS_SELECTOR, ".track").get_attribute("points").split()
+    assert len(points) >= 3, "the track flown is drawn"
+    page.screenshot("flying")
+
+
+def test_setpoint_from_the_command_line_moves_the_marker(daemon, page):
+    log_in_and_take_off(page, daemon)
+    page.command("set_sp_ned -3:-4:-3:1.57")
+    page.wait(lambda: page.log_entries()[0]["request"] == "set_sp_ned -3:-4:-3:1.57", "the request is logged")
+    assert page.log_entries()[0]["status"] == "0 ok"
+    page.wait(lambda: distance(page.marker("vehicle-marker"), {"n": -3, "e": -4}) < 0.3, "the vehicle flies there")
+    yaw = float(page.el("vehicle-marker").get_attribute("data-yaw"))
+    assert abs(yaw - 1.57) < 0.05, "the marker points where the vehicle heads"
+    assert page.text("yaw") == "90°"
+    page.wait(lambda: abs(float(page.text("alt")) - 3.0) < 0.1, "the altitude follows")
+
+
+def test_refused_commands_show_their_error_in_words(daemon, page):
+    log_in_and_take_off(page, daemon)
+    page.command("reboot_node")
+    page.wait(lambda: "reboot_node" in page.text("last-result"), "the answer is shown")
+    last = page.el("last-result")
+    assert last.get_attribute("data-ret") == "-1"
+    assert last.text == "reboot_node: failed or refused (-1) — Not allow when vehicle is ARMED!"
+    entry = page.log_entries()[0]
+    assert entry["ret"] == "-1" and entry["status"] == "-1 failed or refused"
+    assert "Not allow when vehicle is ARMED!" in entry["text"]
+    page.screenshot("refused")
+    page.command("set_sp_ned 5:0")
+    page.wait(lambda: page.log_entries()[0]["request"] == "set_sp_ned 5:0", "the second answer is logged")
+    assert page.log_entries()[0]["status"] == "-2 invalid arguments or unsupported"
+    assert "usage: set_sp_ned x:y:z:yaw" in page.text("last-result")
+    page.command("no_such_command")
+    page.wait(lambda: page.log_entries()[0]["request"] == "no_such_command", "the third answer is logged")
+    assert "Unsupported command: no_such_command" in page.text("last-result")
+
+
+def test_command_line_completes_names_and_keeps_history(daemon, page):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows")
+    field = page.el("command")
+    page.wait(lambda: "Tab completes" in page.text("command-hint"), "the command names arrived")
+    field.send_keys("take")
+    field.send_keys(Keys.TAB)
+    assert field.get_attribute("value") == "takeoff "
+    field.clear()
+    field.send_keys("set_")
+    assert "set_sp_ned" in page.text("command-hint") and "set_param" in page.text("command-hint")
+    field.send_keys(Keys.TAB)
+    assert field.get_attribute("value") == "set_"
+    field.clear()
+    page.command("get_param takeoff_alt")
+    page.wait(lambda: page.log_entries()[0]["request"] == "get_param takeoff_alt", "the answer is logged")
+    page.command("ver")
+    page.wait(lambda: page.log_entries()[0]["request"] == "ver", "the answer is logged")
+    field.send_keys(Keys.ARROW_UP)
+    assert field.get_attribute("value") == "ver"
+    field.send_keys(Keys.ARROW_UP)
+    assert field.get_attribute("value") == "get_param takeoff_alt"
+    field.send_keys(Keys.ARROW_DOWN, Keys.ARROW_DOWN)
+    assert field.get_attribute("value") == ""
+    answer = page.log_entries()[1]["text"]
+    assert '"ret":0' in answer and "takeoff_alt" in answer
+
+
+def test_mission_waypoints_are_drawn_on_the_plot(daemon, page):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows")
+    mission = {"waypoints": [{"x": 5, "y": 0, "z": -3}, {"x": 5, "y": 5, "z": -3}, {"x": 0, "y": 5, "z": -3, "yaw": 1}]}
+    page.command(f"mission 1001:{json.dumps(mission, separators=(',', ':'))}")
+    page.wait(lambda: page.log_entries()[0]["status"] == "0 ok", "the mission is accepted")
+    page.wait(lambda: len(page.driver.find_elements(By.CSS_SELECTOR, "#plot .waypoint")) == 3, "three waypoints are drawn")
+    drawn = [
+        (float(w.get_attribute("data-n")), float(w.get_attribute("data-e")))
+        for w in page.driver.find_elements(By.CSS_SELECTOR, "#plot .waypoint")
+    ]
+    assert drawn == [(5.0, 0.0), (5.0, 5.0), (0.0, 5.0)]
+    page.screenshot("mission")
+
+
+def test_vehicle_without_password_needs_no_login(open_daemon, page):
+    page.open(open_daemon)
+    page.wait(lambda: page.text("fsm") == "DISARMED", "live state shows without login")
+    assert not page.shown("login")
+    assert page.text("role") == "no password"
+    page.wait(lambda: page.text("age").startswith("state ") and page.text("age").endswith(" s ago"), "the age shows")
+    page.wait(lambda: float(page.text("age").split()[1]) < 1.0, "state is fresh: polled several times a second")
+
+
+def test_keyboard_alone_flies_the_vehicle(daemon, page):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows")
+    page.el("takeoff").send_keys(Keys.ENTER)
+    page.wait(lambda: page.shown("confirm"), "takeoff asks first")
+    assert page.driver.switch_to.active_element.get_attribute("id") == "confirm-cancel", "a dangerous question starts on Cancel"
+    page.driver.switch_to.active_element.send_keys(Keys.ESCAPE)
+    page.wait(lambda: not page.shown("confirm"), "Escape says no")
+    page.el("takeoff").send_keys(Keys.ENTER)
+    page.wait(lambda: page.shown("confirm"), "takeoff asks again")
+    page.driver.switch_to.active_element.send_keys(Keys.TAB)
+    assert page.driver.switch_to.active_element.get_attribute("id") == "confirm-ok"
+    page.driver.switch_to.active_element.send_keys(Keys.ENTER)
+    page.wait(lambda: page.text("fsm") == "HOVER", "the vehicle hovers")
+    plot = page.el("plot")
+    plot.send_keys(Keys.ARROW_RIGHT, Keys.ARROW_UP)
+    view = page.view()
+    assert plot.get_attribute("data-auto") == "false", "panning ends auto-fit"
+    plot.send_keys(Keys.ENTER)
+    command = page.confirm("set_sp_ned ")
+    n, e = (float(v) for v in command.split(" ")[1].split(":")[:2])
+    assert abs(n - view["n"]) < 0.01 and abs(e - view["e"]) < 0.01, "Enter flies to the crosshair"
+    page.wait(lambda: distance(page.marker("vehicle-marker"), {"n": n, "e": e}) < 0.3, "the vehicle flies there")
+    plot.send_keys("f")
+    assert plot.get_attribute("data-auto") == "true"
+
+
+def test_tablet_and_laptop_widths_fit_without_sideways_scrolling(daemon, page):
+    try:
+        for name, (w, h) in {"tablet": (820, 1180), "laptop": (1366, 768)}.items():
+            page.resize(w, h)
+            page.open(daemon)
+            page.login(PASSWORD)
+            page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows")
+            overflow = page.driver.execute_script(
+                "return document.documentElement.scrollWidth - document.documentElement.clientWidth"
+            )
+            assert overflow <= 0, f"{name}: {overflow} px wider than the window"
+            for part in ("plot", "takeoff", "land", "rtl", "disarm", "command", "fsm", "battery"):
+                assert page.shown(part), f"{name}: {part} is not shown"
+            assert page.el("plot").size["height"] >= 300, f"{name}: the plot is too small"
+            page.screenshot(name)
+    finally:
+        page.resize(1440, 900)
