@@ -29,7 +29,8 @@ class Console {
     this.url = defaultUrl(window.location);
     /** The password that worked, kept in memory only, to log in again after a reconnect. */
     this.password = null;
-    this.mustLogin = false;
+    /** True until the first answer of a connection says whether it must log in: no polls till then. */
+    this.mustLogin = true;
     this.state = null;
     this.stateAt = null;
     this.stateSentAt = null;
@@ -67,6 +68,7 @@ class Console {
   async #connect() {
     const client = new Client(this.url);
     this.client = client;
+    this.mustLogin = true;
     this.header.connection('connecting');
     client.addEventListener('close', (ev) => this.#closed(client, ev.detail));
     client.addEventListener('stray', (ev) => this.log.note(`answer without a request: ${ev.detail}`, 'danger'));

@@ -25,6 +25,7 @@ def daemon(binary):
     """lluavd with a password, the simulator at four times real speed."""
     d = Lluavd(binary, "--password", PASSWORD, "--sim-speed", "4")
     yield d
+    print(f"lluavd stderr:\n{d.stderr()[-4000:]}")  # shown when the test failed
     d.stop()
 
 
@@ -33,6 +34,7 @@ def open_daemon(binary):
     """lluavd without a password."""
     d = Lluavd(binary, "--sim-speed", "4")
     yield d
+    print(f"lluavd stderr:\n{d.stderr()[-4000:]}")  # shown when the test failed
     d.stop()
 
 

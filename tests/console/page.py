@@ -95,7 +95,16 @@ class Page:
         try:
             return WebDriverWait(self.driver, timeout, poll_frequency=0.1).until(check)
         except Exception as e:  # a TimeoutException, said in words
-            raise AssertionError(f"timed out waiting until {what} (last: {last!r})") from e
+            raise AssertionError(f"timed out waiting until {what} (last: {last!r})\n{self.describe()}") from e
+
+    def describe(self) -> str:
+        """What the page shows, for a failure message."""
+        try:
+            parts = [f"{i}: {self.text(i)!r}" for i in ("conn", "role", "age", "fsm", "armed", "last-result")]
+            parts += [f"log: {e['text']!r}" for e in self.log_entries()[:4]]
+            return "\n".join(parts)
+        except Exception as e:  # the page itself may be gone
+            return f"(page unreadable: {e})"
 
     # Doing ---------------------------------------------------------------
 

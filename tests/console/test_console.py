@@ -211,3 +211,64 @@ def test_tablet_and_laptop_widths_fit_without_sideways_scrolling(daemon, page):
             page.screenshot(name)
     finally:
         page.resize(1440, 900)
+
+
+def test_go_home_and_land_bring_the_vehicle_down(daemon, page):
+    log_in_and_take_off(page, daemon)
+    page.command("set_sp_ned 4:0:-2:0")
+    page.wait(lambda: distance(page.marker("vehicle-marker"), {"n": 4, "e": 0}) < 0.3, "the vehicle flies out")
+    page.click("rtl")
+    page.wait(lambda: page.log_entries()[0]["request"] == "rtl", "rtl is sent without a question")
+    assert page.log_entries()[0]["status"] == "0 ok"
+    page.wait(lambda: distance(page.marker("vehicle-marker"), page.marker("home-marker")) < 0.3, "the vehicle returns home")
+    page.wait(lambda: page.text("fsm") == "DISARMED", "it lands and disarms")
+    page.click("takeoff")
+    page.confirm("takeoff")
+    page.wait(lambda: page.text("fsm") == "HOVER", "it takes off again")
+    page.click("land")
+    page.wait(lambda: page.text("fsm") in ("LANDING", "DISARMED"), "land is sent without a question")
+    page.wait(lambda: page.text("airborne") == "on ground", "it is on the ground")
+
+
+def test_disarm_in_the_air_warns_before_it_is_sent(daemon, page):
+    log_in_and_take_off(page, daemon)
+    page.click("disarm")
+    page.wait(lambda: page.shown("confirm"), "disarm asks first")
+    assert page.text("confirm-title") == "Disarm in the air?"
+    assert "falls" in page.text("confirm-text")
+    page.click("confirm-cancel")
+    page.wait(lambda: not page.shown("confirm"), "the dialog closes")
+    assert page.text("fsm") == "HOVER", "cancel leaves the vehicle flying"
+    assert all(e["request"] != "disarm" for e in page.log_entries())
+
+
+def test_log_out_forgets_the_password_and_asks_again(daemon, page):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("role") == "user", "logged in")
+    page.click("logout")
+    page.wait(lambda: page.shown("login"), "the login form is back after logging out")
+    page.wait(lambda: page.text("conn").startswith("connected"), "on a new connection")
+    page.login("1025")
+    page.wait(lambda: page.text("role") == "admin", "the admin value gives admin, as in any client")
+    page.command("admin_lock")
+    page.wait(lambda: page.log_entries()[0]["request"] == "admin_lock", "the answer is logged")
+    page.wait(lambda: page.text("lock") == "lock mode", "the lock mode badge shows it")
+    page.command("admin_unlock")
+    page.wait(lambda: page.text("lock") == "unlocked", "and its end")
+
+
+def test_losing_the_daemon_shows_disconnected_and_retries(daemon, page):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows")
+    daemon.stop()
+    page.wait(lambda: page.text("conn").startswith("disconnected · retry in"), "the header says the link is gone")
+    page.wait(lambda: page.text("age").startswith("state ") and float(page.text("age").split()[1]) > 1.5,
+              "the state's age grows")
+    assert page.el("age").get_attribute("data-tone") in ("warn", "danger")
+    notes = page.text("log")
+    assert "disconnected (1001" in notes, notes
+    # The retries log failed connections; leave before the page fixture reads the log.
+    page.driver.get("about:blank")
+    page.driver.get_log("browser")
