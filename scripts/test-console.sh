@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# The browser console's tests: headless Debian Chromium, driven by Selenium
-# from Python, against a real lluavd (tests/console/).
+# The browser console's tests: the page's modules under Node's test runner
+# (tests/console/js), then headless Debian Chromium, driven by Selenium from
+# Python, against a real lluavd (tests/console/).
 #
 # Self-installing and idempotent: installs Debian's chromium and
-# chromium-driver (and python3-venv) when missing, and the pinned Python
+# chromium-driver (and python3-venv, nodejs) when missing, and the pinned Python
 # packages into a venv under target/; reruns install nothing. Nothing is
 # downloaded while the tests run.
 #
@@ -21,6 +22,7 @@ missing=()
 [ -x /usr/bin/chromium ] || missing+=(chromium)
 [ -x /usr/bin/chromedriver ] || missing+=(chromium-driver)
 python3 -c 'import venv, ensurepip' 2>/dev/null || missing+=(python3-venv)
+command -v node >/dev/null || missing+=(nodejs)
 if [ ${#missing[@]} -gt 0 ]; then
     echo "test-console: installing ${missing[*]}" >&2
     export DEBIAN_FRONTEND=noninteractive
@@ -43,6 +45,8 @@ if [ -n "${LLUAVD:-}" ]; then
     LLUAVD=$(realpath "$LLUAVD")
     export LLUAVD
 fi
+node --test "$root"/tests/console/js/*.test.mjs
+
 cd "$root/tests/console"
 export PYTHONDONTWRITEBYTECODE=1
 exec "$venv/bin/python" -m pytest "$@"
