@@ -272,3 +272,16 @@ def test_losing_the_daemon_shows_disconnected_and_retries(daemon, page):
     # The retries log failed connections; leave before the page fixture reads the log.
     page.driver.get("about:blank")
     page.driver.get_log("browser")
+
+
+def test_a_setpoint_on_the_ground_is_refused_and_says_why(daemon, page):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows")
+    page.click_plot_at(3.0, 0.0)
+    command = page.confirm("set_sp_ned ")
+    assert command.split(":")[2] == "0", f"on the ground the setpoint is at ground level: {command}"
+    page.wait(lambda: page.el("last-result").get_attribute("data-ret") == "-1", "the refusal is shown")
+    assert page.text("last-result").endswith("failed or refused (-1) — Vehicle is not flying")
+    assert page.el("last-result").get_attribute("data-tone") == "danger"
+    assert distance(page.marker("vehicle-marker"), page.marker("home-marker")) < 0.05, "nothing moved"
