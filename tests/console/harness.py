@@ -96,14 +96,15 @@ class Lluavd:
             first = lines.get(timeout=WAIT)
         except queue.Empty:
             first = ""
-        prefix = "listening on ws://"
-        if not first.startswith(prefix):
+        scheme, _, addr = first.strip().removeprefix("listening on ").partition("://")
+        if not first.startswith("listening on ") or scheme not in ("ws", "wss"):
             self.stop()
             raise RuntimeError(f"lluavd did not start: {first!r}\n{self.stderr()}")
-        self.addr = first[len(prefix):].strip()
+        self.addr = addr.rstrip("/")
+        web = "https" if scheme == "wss" else "http"
         #: Where the page is served, and where its WebSocket goes.
-        self.http_url = f"http://{self.addr}/"
-        self.ws_url = f"ws://{self.addr}/"
+        self.http_url = f"{web}://{self.addr}/"
+        self.ws_url = f"{scheme}://{self.addr}/"
 
     def stderr(self) -> str:
         return self.stderr_path.read_text(errors="replace") if self.stderr_path.exists() else ""
