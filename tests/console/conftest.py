@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import functools
-import http.server
 import shutil
-import threading
 
 import pytest
 
-from harness import ROOT, SCREENSHOTS, Lluavd, chromium, lluavd_binary
+from harness import SCREENSHOTS, Lluavd, chromium, lluavd_binary
 from page import Page
 
 PASSWORD = "s3cret"
@@ -47,28 +44,18 @@ def browser():
 
 
 @pytest.fixture
-def page(browser, assets):
+def page(browser):
     """The browser, on a blank page at the start; after the test, it fails
     the test if the page logged an error (a script error, a CSP violation,
     a failed load). Ask for it after the daemon so that it is checked
     while the daemon still runs."""
     browser.get("about:blank")
     browser.get_log("browser")
-    p = Page(browser, assets)
+    p = Page(browser)
     yield p
     severe = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
     browser.get("about:blank")
     assert severe == [], f"the page logged errors: {severe}"
-
-
-@pytest.fixture(scope="session")
-def assets():
-    """The page's files served over HTTP from the checkout."""
-    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(ROOT / "host" / "console"))
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    yield f"http://127.0.0.1:{server.server_address[1]}/"
-    server.shutdown()
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -121,12 +121,12 @@ class Lluavd:
         self._dir.cleanup()
 
 
-def chromium(width: int = 1440, height: int = 900) -> webdriver.Chrome:
+def chromium(width: int = 1440, height: int = 900, extra_flags: tuple[str, ...] = ()) -> webdriver.Chrome:
     """Headless Debian Chromium with a fresh profile, driven by Debian's ChromeDriver."""
     profile = tempfile.mkdtemp(prefix="lluav-chromium-")
     options = Options()
     options.binary_location = CHROMIUM
-    for flag in CHROMIUM_FLAGS:
+    for flag in (*CHROMIUM_FLAGS, *extra_flags):
         options.add_argument(flag)
     options.add_argument(f"--user-data-dir={profile}")
     options.add_argument(f"--window-size={width},{height}")

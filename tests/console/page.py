@@ -19,15 +19,14 @@ from harness import SCREENSHOTS, WAIT
 
 
 class Page:
-    def __init__(self, driver, assets_url: str):
+    def __init__(self, driver):
         self.driver = driver
-        self.assets_url = assets_url
 
     # Loading -------------------------------------------------------------
 
     def open(self, daemon) -> None:
-        """Loads the console that talks to `daemon`."""
-        self.driver.get(f"{self.assets_url}?ws={daemon.ws_url}")
+        """Loads the console from `daemon` itself."""
+        self.driver.get(daemon.http_url)
         self.wait(lambda: self.text("conn").startswith("connected"), "the page connects")
 
     def resize(self, width: int, height: int) -> None:
