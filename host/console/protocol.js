@@ -103,7 +103,9 @@ export class Client extends EventTarget {
       try {
         ws = new WebSocket(this.url);
       } catch (e) {
+        // A bad URL, or one the page's Content-Security-Policy forbids.
         reject(e);
+        this.dispatchEvent(new CustomEvent('close', { detail: { code: 1006, reason: e.message } }));
         return;
       }
       this.#ws = ws;

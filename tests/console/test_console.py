@@ -285,3 +285,15 @@ def test_a_setpoint_on_the_ground_is_refused_and_says_why(daemon, page):
     assert page.text("last-result").endswith("failed or refused (-1) — Vehicle is not flying")
     assert page.el("last-result").get_attribute("data-tone") == "danger"
     assert distance(page.marker("vehicle-marker"), page.marker("home-marker")) < 0.05, "nothing moved"
+
+
+def test_the_pages_policy_keeps_its_websocket_to_its_own_origin(daemon, open_daemon, page):
+    # A link to this vehicle's console that names another server's WebSocket
+    # (here a real one, open_daemon) must not make the page talk to it.
+    page.driver.get(f"{daemon.http_url}?ws={open_daemon.ws_url}")
+    page.wait(lambda: page.text("conn").startswith("disconnected"), "the connection is refused")
+    assert page.text("fsm") == "UNKNOWN", "no state came from the other server"
+    logs = page.driver.get_log("browser")
+    assert any("Content Security Policy" in e["message"] for e in logs), logs
+    page.driver.get("about:blank")
+    page.driver.get_log("browser")
