@@ -109,18 +109,26 @@ export class Client extends EventTarget {
         return;
       }
       this.#ws = ws;
+      let ended = false;
+      const end = (code, reason) => {
+        if (ended) return;
+        ended = true;
+        reject(new Error(`cannot connect to ${this.url} (${reason})`));
+        if (this.#ws === ws) this.#ws = null;
+        this.#failAll(new Error(`connection closed (${code} ${reason})`));
+        this.dispatchEvent(new CustomEvent('close', { detail: { code, reason } }));
+      };
       ws.addEventListener('open', () => {
         resolve();
         this.dispatchEvent(new Event('open'));
       });
       ws.addEventListener('message', (event) => this.#answer(event.data));
-      ws.addEventListener('close', (event) => {
-        const reason = event.reason || closeWords(event.code);
-        reject(new Error(`cannot connect to ${this.url} (${reason})`));
-        if (this.#ws === ws) this.#ws = null;
-        this.#failAll(new Error(`connection closed (${event.code} ${reason})`));
-        this.dispatchEvent(new CustomEvent('close', { detail: { code: event.code, reason } }));
-      });
+      ws.addEventListener('close', (event) => end(event.code, event.reason || closeWords(event.code)));
+      // A connection the page's policy blocks fails with an error and no
+      // close event (Chromium): it is closed all the same.
+      ws.addEventListener('error', () => setTimeout(() => {
+        if (ws.readyState === WebSocket.CLOSED) end(1006, 'refused');
+      }, 0));
     });
   }
 

@@ -5,6 +5,7 @@ import assert from 'node:assert/strict';
 /** A WebSocket the test plays the server of. */
 class FakeSocket extends EventTarget {
   static OPEN = 1;
+  static CLOSED = 3;
   static last = null;
   constructor(url) {
     super();
@@ -73,6 +74,32 @@ test('a close fails every waiting request and says why', async () => {
   await assert.rejects(b, /connection closed/);
   assert.deepEqual(closes, [{ code: 1008, reason: 'policy: too many wrong passwords' }]);
   await assert.rejects(client.request('state'), /not connected/);
+});
+
+test('a connection refused with an error and no close event counts as closed', async () => {
+  const client = new Client('ws://elsewhere:1/');
+  const closes = [];
+  client.addEventListener('close', (e) => closes.push(e.detail));
+  const opening = client.connect();
+  const socket = FakeSocket.last;
+  socket.readyState = 3;
+  socket.dispatchEvent(new Event('error'));
+  await assert.rejects(opening, /cannot connect to ws:\/\/elsewhere:1\/ \(refused\)/);
+  assert.deepEqual(closes, [{ code: 1006, reason: 'refused' }]);
+});
+
+test('an error followed by a close reports the close once, with its code', async () => {
+  const client = new Client('ws://vehicle:1/');
+  const closes = [];
+  client.addEventListener('close', (e) => closes.push(e.detail));
+  const opening = client.connect();
+  const socket = FakeSocket.last;
+  socket.readyState = 3;
+  socket.dispatchEvent(new Event('error'));
+  socket.serverClose(1006);
+  await assert.rejects(opening);
+  await new Promise((r) => setTimeout(r, 5));
+  assert.deepEqual(closes, [{ code: 1006, reason: 'no connection' }]);
 });
 
 test('an answer that is not JSON fails its request only', async () => {
