@@ -281,7 +281,7 @@ impl<V: Vehicle> Daemon<V> {
             limits: settings.limits,
             policy: settings.policy.clone(),
             tls,
-            console: true,
+            console: settings.console,
         };
         let listener = TcpListener::bind(settings.bind)
             .await

@@ -12,8 +12,8 @@ use std::net::IpAddr;
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio_tungstenite::tungstenite::handshake::derive_accept_key;
 
-use super::console_fallback as console;
 use super::policy::{Forbidden, Policy};
+use crate::console;
 
 /// Largest request head read; a longer one is refused with 431.
 pub const MAX_HEAD: usize = 8 * 1024;

@@ -16,7 +16,6 @@
 //! share this code path, so what Autobahn tests is what clients get.
 
 pub mod connection;
-mod console_fallback;
 pub mod handshake;
 pub mod listener;
 pub mod policy;
