@@ -4,7 +4,7 @@
 # Python, against a real lluavd (tests/console/).
 #
 # Self-installing and idempotent: installs Debian's chromium and
-# chromium-driver (and python3-venv, nodejs) when missing, and the pinned Python
+# chromium-driver (and python3-venv, nodejs, openssl) when missing, and the pinned Python
 # packages into a venv under target/; reruns install nothing. Nothing is
 # downloaded while the tests run.
 #
@@ -23,6 +23,7 @@ missing=()
 [ -x /usr/bin/chromedriver ] || missing+=(chromium-driver)
 python3 -c 'import venv, ensurepip' 2>/dev/null || missing+=(python3-venv)
 command -v node >/dev/null || missing+=(nodejs)
+command -v openssl >/dev/null || missing+=(openssl)
 if [ ${#missing[@]} -gt 0 ]; then
     echo "test-console: installing ${missing[*]}" >&2
     export DEBIAN_FRONTEND=noninteractive
