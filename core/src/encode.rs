@@ -1,13 +1,14 @@
 //! [`Command`] → canonical text: the mirror image of [`crate::parse()`].
 //!
-//! Numbers are written with Rust's shortest round-trip formatting, so
-//! `parse(encode(c)) == c` holds for every command (a property test proves
-//! it). Encoding never allocates: it writes into any [`fmt::Write`], such
+//! Floats are written as responses write them ([`crate::number`]: the
+//! shortest text that reads back as the same `f32`), so `parse(encode(c))
+//! == c` holds for every command (a property test proves it). Encoding never allocates: it writes into any [`fmt::Write`], such
 //! as a `heapless::String` on a microcontroller or a `String` on a host.
 
 use core::fmt::{self, Display, Write};
 
 use crate::command::{Args, Command, Payload};
+use crate::number::format_f32;
 
 impl Command<'_> {
     /// Writes the frame for this command.
@@ -30,7 +31,7 @@ impl Command<'_> {
             }
             Args::Amount(v) | Args::OptAmount(Some(v)) | Args::Angle(v) => {
                 arg(w)?;
-                write!(w, "{v}")
+                w.write_str(format_f32(*v).as_str())
             }
             Args::Name(s)
             | Args::OptName(Some(s))
@@ -48,23 +49,23 @@ impl Command<'_> {
             }
             Args::Setpoint(p) => {
                 arg(w)?;
-                joined(w, ':', &[p.x, p.y, p.z, p.yaw])
+                floats(w, ':', &[p.x, p.y, p.z, p.yaw])
             }
             Args::Point(p) => {
                 arg(w)?;
-                joined(w, ':', &[p.x, p.y, p.z])
+                floats(w, ':', &[p.x, p.y, p.z])
             }
             Args::Pose(p) => {
                 arg(w)?;
-                joined(w, ',', &[p.x, p.y, p.z, p.yaw])
+                floats(w, ',', &[p.x, p.y, p.z, p.yaw])
             }
             Args::Zyhk { heights, land } => {
                 arg(w)?;
-                joined(w, ',', heights)?;
+                floats(w, ',', heights)?;
                 match land {
                     Some(l) => {
                         w.write_char(' ')?;
-                        joined(w, ',', &[l.x, l.y, l.yaw])
+                        floats(w, ',', &[l.x, l.y, l.yaw])
                     }
                     None => Ok(()),
                 }
@@ -87,6 +88,16 @@ impl Command<'_> {
             }
         }
     }
+}
+
+fn floats<W: Write>(w: &mut W, sep: char, items: &[f32]) -> fmt::Result {
+    for (i, item) in items.iter().enumerate() {
+        if i > 0 {
+            w.write_char(sep)?;
+        }
+        w.write_str(format_f32(*item).as_str())?;
+    }
+    Ok(())
 }
 
 fn joined<W: Write, T: Display>(w: &mut W, sep: char, items: &[T]) -> fmt::Result {

@@ -50,6 +50,7 @@ pub mod command;
 mod encode;
 pub mod error;
 pub mod gate;
+pub mod number;
 pub mod parse;
 pub mod response;
 pub mod server;

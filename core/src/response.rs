@@ -11,6 +11,7 @@ use core::fmt;
 use serde::Serialize;
 
 use crate::error::{Failure, Ret};
+use crate::number;
 
 /// Room kept at the start of the buffer for `{"ret":..,"cmd":..,"ts":..`,
 /// which is written after the backend's fields (ret and ts are only known
@@ -119,8 +120,9 @@ impl Sink<'_> {
         self.bytes(if v { b"true" } else { b"false" });
     }
 
-    /// Shortest round-trip text (ryu: `1.5`, `-10.0`, `1e30`); JSON has no
-    /// NaN or infinity, so those become `null`.
+    /// Shortest round-trip text (Ryu: `1.5`, `-10.0`, `1e30`); JSON has no
+    /// NaN or infinity, so those become `null`. Only host backends write
+    /// doubles; a firmware that never does links none of Ryu.
     fn f64(&mut self, v: f64) {
         if v.is_finite() {
             self.bytes(ryu::Buffer::new().format_finite(v).as_bytes());
@@ -129,11 +131,26 @@ impl Sink<'_> {
         }
     }
 
+    /// Shortest round-trip text (`0.1`, `-10.0`, `1e30`: the number
+    /// module, the same text as Ryu); JSON has no NaN or infinity, so those
+    /// become `null`.
     fn f32(&mut self, v: f32) {
-        if v.is_finite() {
-            self.bytes(ryu::Buffer::new().format_finite(v).as_bytes());
-        } else {
+        if !v.is_finite() {
             self.bytes(b"null");
+            return;
+        }
+        if self.overflow {
+            return;
+        }
+        let room = self.buf.get_mut(self.len..);
+        match room.and_then(|rest| rest.first_chunk_mut::<{ number::MAX_LEN }>()) {
+            // In place when there is room for the longest text.
+            Some(room) => self.len += number::write_f32(v, room),
+            None => {
+                let mut text = [0; number::MAX_LEN];
+                let len = number::write_f32(v, &mut text);
+                self.bytes(text.get(..len).unwrap_or_default());
+            }
         }
     }
 

@@ -1,55 +1,34 @@
-//! Field-level grammar: numbers, flags, and separated field lists, built
-//! with nom. Each function takes one argument string and either returns a
-//! typed value or a typed [`ArgError`]; none of them panics.
+//! Field-level grammar: numbers, flags, and separated field lists. Each
+//! function takes one argument string and either returns a typed value or
+//! a typed [`ArgError`]; none of them panics.
 
 use heapless::Vec;
-use nom::branch::alt;
-use nom::bytes::complete::take_till;
-use nom::character::complete::{char, digit0, digit1, one_of};
-use nom::combinator::{all_consuming, opt, recognize, rest};
-use nom::multi::fold_many0;
-use nom::sequence::{preceded, separated_pair};
-use nom::{IResult, Parser};
 
 use crate::error::ArgError;
+use crate::number::parse_f32;
 
-type NomError<'a> = nom::error::Error<&'a str>;
-
-/// `[+-]? (digits ('.' digits?)? | '.' digits) ([eE] [+-]? digits)?`:
-/// decimal notation only, so `nan`, `inf` and hex never get through.
-fn decimal(i: &str) -> IResult<&str, &str> {
-    recognize((
-        opt(one_of("+-")),
-        alt((
-            recognize((digit1, opt((char('.'), digit0)))),
-            recognize((char('.'), digit1)),
-        )),
-        opt((one_of("eE"), opt(one_of("+-")), digit1)),
-    ))
-    .parse(i)
-}
-
-/// A finite decimal number that fits an `f32`.
+/// A finite decimal number that fits an `f32`, correctly rounded:
+/// `[+-]? (digits ('.' digits?)? | '.' digits) ([eE] [+-]? digits)?`, so
+/// `nan`, `inf` and hex never get through.
 pub(crate) fn float(token: &str) -> Result<f32, ArgError> {
     if token.is_empty() {
         return Err(ArgError::Missing);
     }
-    if all_consuming(decimal).parse(token).is_err() {
-        let word = token.trim_start_matches(['+', '-']);
-        let non_finite = ["nan", "inf", "infinity"]
-            .iter()
-            .any(|w| word.eq_ignore_ascii_case(w));
-        return Err(if non_finite {
-            ArgError::NotFinite
-        } else {
-            ArgError::NotANumber
-        });
+    match parse_f32(token) {
+        // Overflow to infinity is the only way to a non-finite value.
+        Some(v) => super::rules::finite(v),
+        None => {
+            let word = token.trim_start_matches(['+', '-']);
+            let non_finite = ["nan", "inf", "infinity"]
+                .iter()
+                .any(|w| word.eq_ignore_ascii_case(w));
+            Err(if non_finite {
+                ArgError::NotFinite
+            } else {
+                ArgError::NotANumber
+            })
+        }
     }
-    // The syntax is checked above, so only overflow to infinity remains.
-    token
-        .parse::<f32>()
-        .map_err(|_| ArgError::NotANumber)
-        .and_then(super::rules::finite)
 }
 
 /// An unsigned decimal integer that fits a `u32`.
@@ -57,10 +36,26 @@ pub(crate) fn uint(token: &str) -> Result<u32, ArgError> {
     if token.is_empty() {
         return Err(ArgError::Missing);
     }
-    all_consuming(digit1::<_, NomError>)
-        .parse(token)
-        .map_err(|_| ArgError::NotANumber)?;
-    token.parse::<u32>().map_err(|_| ArgError::OutOfRange)
+    let mut value: u32 = 0;
+    let mut overflow = false;
+    for b in token.bytes() {
+        let digit = b.wrapping_sub(b'0');
+        if digit > 9 {
+            return Err(ArgError::NotANumber);
+        }
+        match value
+            .checked_mul(10)
+            .and_then(|v| v.checked_add(u32::from(digit)))
+        {
+            Some(v) => value = v,
+            None => overflow = true,
+        }
+    }
+    if overflow {
+        Err(ArgError::OutOfRange)
+    } else {
+        Ok(value)
+    }
 }
 
 /// An integer PWM value, 0–65535.
@@ -86,31 +81,13 @@ pub(crate) fn list<T, const N: usize>(
     sep: char,
     item: impl Fn(&str) -> Result<T, ArgError>,
 ) -> Result<Vec<T, N>, ArgError> {
-    // The list is filled in place: folding it through nom by value would
-    // copy the whole fixed-capacity vector once per field.
+    // Filled in place: a fixed-capacity vector moved per field would be
+    // copied whole each time.
     let mut items = Vec::new();
-    let mut failure = None;
-    let mut push = |token: &str| {
-        if failure.is_none()
-            && let Err(e) = item(token).and_then(|v| items.push(v).map_err(|_| ArgError::TooMany))
-        {
-            failure = Some(e);
-        }
-    };
-    let field = || take_till::<_, _, NomError>(move |c| c == sep);
-    let (rest_input, first_token) = field().parse(input).map_err(|_| ArgError::Malformed)?;
-    push(first_token);
-    all_consuming(fold_many0(
-        preceded(char(sep), field()),
-        || (),
-        |(), token| push(token),
-    ))
-    .parse(rest_input)
-    .map_err(|_| ArgError::Malformed)?;
-    match failure {
-        Some(e) => Err(e),
-        None => Ok(items),
+    for token in input.split(sep) {
+        items.push(item(token)?).map_err(|_| ArgError::TooMany)?;
     }
+    Ok(items)
 }
 
 /// Exactly `N` numbers separated by `sep`.
@@ -124,8 +101,5 @@ pub(crate) fn numbers<const N: usize>(input: &str, sep: char) -> Result<[f32; N]
 
 /// Splits at the first `sep`: `(head, tail)`; no `sep` is malformed.
 pub(crate) fn split_first(input: &str, sep: char) -> Result<(&str, &str), ArgError> {
-    separated_pair(take_till::<_, _, NomError>(|c| c == sep), char(sep), rest)
-        .parse(input)
-        .map(|(_, pair)| pair)
-        .map_err(|_| ArgError::Malformed)
+    input.split_once(sep).ok_or(ArgError::Malformed)
 }
