@@ -40,22 +40,29 @@ struct Sink<'b> {
 type SinkState = (usize, bool, Option<usize>);
 
 impl Sink<'_> {
-    fn bytes(&mut self, b: &[u8]) {
-        if self.overflow {
-            return;
+    /// The next `n` bytes of the buffer, counted as written (the caller
+    /// fills them all); `None`, and overflow, when they do not fit.
+    fn room(&mut self, n: usize) -> Option<&mut [u8]> {
+        let start = self.len;
+        let end = start.saturating_add(n);
+        if self.overflow || end > self.buf.len() {
+            self.overflow = true;
+            return None;
         }
-        let end = self.len + b.len();
-        match self.buf.get_mut(self.len..end) {
-            Some(dst) => {
-                dst.copy_from_slice(b);
-                self.len = end;
-            }
-            None => self.overflow = true,
+        self.len = end;
+        self.buf.get_mut(start..end)
+    }
+
+    fn bytes(&mut self, b: &[u8]) {
+        if let Some(dst) = self.room(b.len()) {
+            dst.copy_from_slice(b);
         }
     }
 
     fn byte(&mut self, b: u8) {
-        self.bytes(&[b]);
+        if let Some([dst]) = self.room(1) {
+            *dst = b;
+        }
     }
 
     /// A JSON string made of `parts`, escaped per RFC 8259.
@@ -65,6 +72,33 @@ impl Sink<'_> {
             self.escaped(part);
         }
         self.byte(b'"');
+    }
+
+    /// `lead`, `s` as a JSON string, then `trail`: in one piece when `s`
+    /// needs no escapes (keys and most values), which is most of a
+    /// response.
+    fn quoted(&mut self, lead: Option<u8>, s: &str, trail: Option<u8>) {
+        let text = s.as_bytes();
+        if !plain(text) {
+            lead.map(|b| self.byte(b));
+            self.string(&[s]);
+            trail.map(|b| self.byte(b));
+            return;
+        }
+        let at = usize::from(lead.is_some());
+        let n = at + text.len() + 2 + usize::from(trail.is_some());
+        let Some(dst) = self.room(n) else {
+            return;
+        };
+        let end = at + 1 + text.len();
+        for (i, b) in [(0, lead), (at, Some(b'"')), (end, Some(b'"')), (end + 1, trail)] {
+            if let (Some(slot), Some(b)) = (dst.get_mut(i), b) {
+                *slot = b;
+            }
+        }
+        if let Some(d) = dst.get_mut(at + 1..end) {
+            d.copy_from_slice(text);
+        }
     }
 
     fn escaped(&mut self, s: &str) {
@@ -93,20 +127,54 @@ impl Sink<'_> {
     }
 
     fn uint(&mut self, v: u64) {
-        let mut digits = [0u8; 20];
-        let mut i = digits.len();
-        // 32-bit cores emulate 64-bit division in software: peel eight
-        // digits off with one such division while the value needs 64 bits
-        // (a millisecond timestamp needs one), then go on in 32 bits.
-        let mut rest = v;
-        while rest > u64::from(u32::MAX) {
-            let low = u32::try_from(rest % 100_000_000).unwrap_or_default();
-            rest /= 100_000_000;
-            i = pairs(&mut digits, i, low, 8);
+        // 32-bit cores have no 64-bit division: split by multiplication
+        // into eight-digit groups (a millisecond timestamp has two).
+        const GROUP: u64 = 100_000_000;
+        if v < GROUP {
+            return self.digits(v as u32);
         }
-        let top = u32::try_from(rest).unwrap_or_default();
-        i = pairs(&mut digits, i, top, 1);
-        self.bytes(digits.get(i..).unwrap_or_default());
+        let high = number::div_1e8(v);
+        let low = (v - high * GROUP) as u32;
+        if high < GROUP {
+            self.digits(high as u32);
+        } else {
+            let top = number::div_1e8(high);
+            self.digits(top as u32);
+            self.eight((high - top * GROUP) as u32);
+        }
+        self.eight(low);
+    }
+
+    /// `v` (below 10^8) in decimal.
+    fn digits(&mut self, v: u32) {
+        if v < 10 {
+            return self.byte(b'0' + v as u8);
+        }
+        if v < 100 {
+            return self.bytes(&number::pair(v));
+        }
+        let n = number::digit_count(v);
+        // The n last of the eight digits, moved to the front.
+        let text = u64::from_le_bytes(number::eight_digits(v)) >> (8 * (8 - n));
+        self.up_to_eight(text.to_le_bytes(), n);
+    }
+
+    /// `v` (below 10^8) as exactly eight digits.
+    fn eight(&mut self, v: u32) {
+        self.up_to_eight(number::eight_digits(v), 8);
+    }
+
+    /// The first `n` of `bytes`: all eight stored at once when there is
+    /// room (what follows `n` is overwritten by whatever comes next).
+    fn up_to_eight(&mut self, bytes: [u8; 8], n: usize) {
+        let room = self.buf.get_mut(self.len..).and_then(|rest| rest.first_chunk_mut::<8>());
+        match room {
+            Some(dst) if !self.overflow => {
+                *dst = bytes;
+                self.len += n;
+            }
+            _ => self.bytes(bytes.get(..n).unwrap_or_default()),
+        }
     }
 
     fn int(&mut self, v: i64) {
@@ -238,51 +306,43 @@ impl fmt::Write for Bounded<'_, '_> {
     }
 }
 
-/// Writes `v` in decimal right-aligned before `digits[end]`, at least
-/// `min` digits (zero-padded), two digits per step from a table as integer
-/// formatters do; returns where the digits start.
-fn pairs(digits: &mut [u8; 20], mut end: usize, mut v: u32, min: usize) -> usize {
-    const PAIRS: &[u8; 200] = b"0001020304050607080910111213141516171819\
-2021222324252627282930313233343536373839404142434445464748495051525354555657585960616263646566676869\
-707172737475767778798081828384858687888990919293949596979899";
-    let stop = end.saturating_sub(min);
-    while v >= 10 || end > stop.saturating_add(1) {
-        let pair = (v % 100) as usize * 2;
-        v /= 100;
-        let start = end.saturating_sub(2);
-        if let (Some(dst), Some(src)) = (digits.get_mut(start..end), PAIRS.get(pair..pair + 2)) {
-            dst.copy_from_slice(src);
-        }
-        end = start;
-    }
-    if v > 0 || end > stop {
-        end = end.saturating_sub(1);
-        if let Some(d) = digits.get_mut(end) {
-            *d = b'0' + v as u8;
-        }
-    }
-    end
-}
-
 /// Bytes that JSON strings must escape.
 fn needs_escape(b: u8) -> bool {
     b < 0x20 || b == b'"' || b == b'\\'
 }
 
+/// Whether no byte of `bytes` [`needs_escape`], eight at a time (the last
+/// eight overlapping those before when the length is not a multiple).
+fn plain(bytes: &[u8]) -> bool {
+    match bytes.last_chunk::<8>() {
+        None => !bytes.iter().any(|&b| needs_escape(b)),
+        Some(last) => {
+            let mut chunks = bytes.chunks_exact(8);
+            !(&mut chunks).any(|c| c.first_chunk::<8>().is_some_and(|w| word_escapes(*w)))
+                && (chunks.remainder().is_empty() || !word_escapes(*last))
+        }
+    }
+}
+
+/// Whether any of eight bytes [`needs_escape`].
+fn word_escapes(bytes: [u8; 8]) -> bool {
+    const ONES: u64 = 0x0101_0101_0101_0101;
+    const HIGH: u64 = 0x8080_8080_8080_8080;
+    let x = u64::from_le_bytes(bytes);
+    // A byte's high bit is set where that byte of `x` is zero (exact as to
+    // whether any is).
+    let zero = |x: u64| x.wrapping_sub(ONES) & !x & HIGH;
+    let control = x.wrapping_sub(ONES * 0x20) & !x & HIGH;
+    control | zero(x ^ (ONES * u64::from(b'"'))) | zero(x ^ (ONES * u64::from(b'\\'))) != 0
+}
+
 /// The index of the first byte that [`needs_escape`], testing eight bytes
 /// per step: strings are mostly long runs that need none.
 fn first_escape(bytes: &[u8]) -> Option<usize> {
-    const ONES: u64 = 0x0101_0101_0101_0101;
-    const HIGH: u64 = 0x8080_8080_8080_8080;
-    // Sets a byte's high bit where that byte of `x` is zero (exact as to
-    // whether any is; which one is then found bytewise).
-    let zero = |x: u64| x.wrapping_sub(ONES) & !x & HIGH;
     let mut chunks = bytes.chunks_exact(8);
     let mut offset = 0;
     for chunk in &mut chunks {
-        let x = u64::from_le_bytes(chunk.try_into().unwrap_or_default());
-        let control = x.wrapping_sub(ONES * 0x20) & !x & HIGH;
-        if control | zero(x ^ (ONES * u64::from(b'"'))) | zero(x ^ (ONES * u64::from(b'\\'))) != 0 {
+        if chunk.first_chunk::<8>().is_some_and(|w| word_escapes(*w)) {
             return chunk.iter().position(|&b| needs_escape(b)).map(|i| offset + i);
         }
         offset += 8;
@@ -316,7 +376,7 @@ macro_rules! value_writers {
             /// A string.
             pub fn str(&mut self, $($key: &str,)? v: &str) -> &mut Self {
                 self.$lead($($key)?);
-                self.sink.string(&[v]);
+                self.sink.quoted(None, v, None);
                 self
             }
             /// A signed integer.
@@ -423,11 +483,8 @@ impl<'b> Fields<'b> {
     }
 
     fn member(&mut self, key: &str) {
-        if !core::mem::take(&mut self.first) {
-            self.sink.byte(b',');
-        }
-        self.sink.string(&[key]);
-        self.sink.byte(b':');
+        let lead = (!core::mem::take(&mut self.first)).then_some(b',');
+        self.sink.quoted(lead, key, Some(b':'));
     }
 
     /// Whether everything written so far fitted.
@@ -474,14 +531,13 @@ fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
 /// closes the object. Returns the response length, or `None` if it does not
 /// fit.
 pub(crate) fn finish(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, body_end: usize) -> Option<usize> {
-    let mut h = [0u8; HEAD_RESERVE];
-    let head_len = head(&mut h, ret, cmd, ts)?;
-    let body = HEAD_RESERVE..body_end;
-    let body_len = body.len();
     // The closing brace needs one byte after the body.
     buf.get(body_end)?;
+    // The head fits the room reserved before the body.
+    let head_len = head(buf.get_mut(..HEAD_RESERVE)?, ret, cmd, ts)?;
+    let body = HEAD_RESERVE..body_end;
+    let body_len = body.len();
     buf.copy_within(body, head_len);
-    buf.get_mut(..head_len)?.copy_from_slice(h.get(..head_len)?);
     let end = head_len + body_len;
     *buf.get_mut(end)? = b'}';
     Some(end + 1)

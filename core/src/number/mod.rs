@@ -30,30 +30,146 @@ const PAIRS: &[u8; 200] = b"\
 6061626364656667686970717273747576777879\
 8081828384858687888990919293949596979899";
 
-/// Writes `v` in decimal at the end of `buf`, two digits per step; returns
-/// where the digits start.
-pub(crate) fn decimal_u32(mut v: u32, buf: &mut [u8; 10]) -> usize {
-    let mut at = buf.len();
-    while v >= 100 {
-        let pair = (v % 100) as usize * 2;
-        v /= 100;
-        at = at.saturating_sub(2);
-        copy_pair(buf, at, pair);
+/// The two ASCII digits of `v` (below 100).
+pub(crate) fn pair(v: u32) -> [u8; 2] {
+    let at = (v as usize % 100) * 2;
+    match PAIRS.get(at..at + 2) {
+        Some(&[a, b]) => [a, b],
+        _ => [b'0'; 2],
     }
-    if v >= 10 {
-        at = at.saturating_sub(2);
-        copy_pair(buf, at, v as usize * 2);
-    } else {
-        at = at.saturating_sub(1);
-        if let Some(d) = buf.get_mut(at) {
-            *d = b'0' + v as u8;
-        }
-    }
-    at
 }
 
-fn copy_pair(buf: &mut [u8], at: usize, pair: usize) {
-    if let (Some(dst), Some(src)) = (buf.get_mut(at..at + 2), PAIRS.get(pair..pair + 2)) {
-        dst.copy_from_slice(src);
+/// The eight decimal digits of `v` (below 10^8), zero-padded, in ASCII:
+/// all at once in one 64-bit word (two 4-digit lanes, split into four
+/// 2-digit lanes, split into eight digits), no table, no loop.
+pub(crate) fn eight_digits(v: u32) -> [u8; 8] {
+    // The first digits go to the lowest bytes (little-endian order).
+    let x = u64::from(v / 10_000) | u64::from(v % 10_000) << 32;
+    // ⌊n · 10486 / 2^20⌋ = ⌊n / 100⌋ for n < 43699.
+    let hundreds = ((x * 10_486) >> 20) & 0x0000_007F_0000_007F;
+    let x = hundreds | (x - hundreds * 100) << 16;
+    // ⌊n · 103 / 2^10⌋ = ⌊n / 10⌋ for n < 179.
+    let tens = ((x * 103) >> 10) & 0x000F_000F_000F_000F;
+    let x = tens | (x - tens * 10) << 8;
+    (x + 0x3030_3030_3030_3030).to_le_bytes()
+}
+
+/// How many decimal digits `v` has (one for zero).
+pub(crate) fn digit_count(v: u32) -> usize {
+    // ⌊log10 2^bits⌋, or one more.
+    const POW10: [u32; 10] = [
+        1,
+        10,
+        100,
+        1_000,
+        10_000,
+        100_000,
+        1_000_000,
+        10_000_000,
+        100_000_000,
+        1_000_000_000,
+    ];
+    // Zero has one digit; setting the lowest bit never reaches a power of ten.
+    let v = v | 1;
+    let bits = 32 - v.leading_zeros();
+    let t = ((bits * 1_233) >> 12) as usize;
+    t + usize::from(POW10.get(t).is_some_and(|&p| v >= p))
+}
+
+/// `v / 10^8` by multiplication (a 32-bit core has no 64-bit division):
+/// ⌊v · m / 2^90⌋ with m = ⌈2^90 / 10^8⌉, exact for every u64 since
+/// m · 10^8 − 2^90 <= 2^26 (Granlund and Montgomery).
+pub(crate) fn div_1e8(v: u64) -> u64 {
+    mul_high(v, 0xABCC_7711_8461_CEFD) >> 26
+}
+
+/// The high 64 bits of the 128-bit product `a · b`.
+pub(crate) fn mul_high(a: u64, b: u64) -> u64 {
+    #[cfg(target_pointer_width = "64")]
+    {
+        ((u128::from(a) * u128::from(b)) >> 64) as u64
+    }
+    #[cfg(not(target_pointer_width = "64"))]
+    {
+        mul_high_by_halves(a, b)
+    }
+}
+
+/// [`mul_high`] from 32-bit halves, for 32-bit cores (which have no 64×64
+/// multiplication; a 128-bit one would be a library call).
+#[cfg_attr(target_pointer_width = "64", allow(dead_code))]
+fn mul_high_by_halves(a: u64, b: u64) -> u64 {
+    const LOW: u64 = 0xFFFF_FFFF;
+    let (a1, a0) = (a >> 32, a & LOW);
+    let (b1, b0) = (b >> 32, b & LOW);
+    let low = a0 * b0;
+    let cross1 = a0 * b1;
+    let cross2 = a1 * b0;
+    let middle = (low >> 32) + (cross1 & LOW) + (cross2 & LOW);
+    a1 * b1 + (cross1 >> 32) + (cross2 >> 32) + (middle >> 32)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn eight_digits_are_the_zero_padded_decimal() {
+        for v in (0..100_000_000).step_by(7).chain(99_999_990..100_000_000) {
+            let mut want = [b'0'; 8];
+            let mut rest = v;
+            for d in want.iter_mut().rev() {
+                *d = b'0' + (rest % 10) as u8;
+                rest /= 10;
+            }
+            assert_eq!(eight_digits(v), want, "{v}");
+        }
+    }
+
+    #[test]
+    fn digit_counts_are_exact() {
+        let mut p: u64 = 1;
+        for n in 1..=10usize {
+            // 10^(n-1) and the values around it.
+            for v in [p.saturating_sub(1), p, p + 1, p * 10 - 1] {
+                if let Ok(v) = u32::try_from(v) {
+                    let want = (1..=10).find(|&d| u64::from(v) < 10u64.pow(d)).unwrap_or(0) as usize;
+                    assert_eq!(digit_count(v), want, "{v}");
+                }
+            }
+            p *= 10;
+            let _ = n;
+        }
+        assert_eq!(digit_count(0), 1);
+        assert_eq!(digit_count(u32::MAX), 10);
+    }
+
+    #[test]
+    fn division_by_ten_to_the_eight_is_exact() {
+        let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+        for i in 0..1_000_000u64 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            for v in [x, x >> (i % 64), i, u64::MAX - i, i * 100_000_000, (i * 100_000_000).wrapping_sub(1)] {
+                assert_eq!(div_1e8(v), v / 100_000_000, "{v}");
+            }
+        }
+    }
+
+    #[test]
+    fn high_products_are_exact() {
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for _ in 0..1_000_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let y = x.rotate_left(29) ^ 0x5555;
+            let want = ((u128::from(x) * u128::from(y)) >> 64) as u64;
+            assert_eq!(mul_high(x, y), want);
+            assert_eq!(mul_high_by_halves(x, y), want);
+        }
+        assert_eq!(mul_high_by_halves(u64::MAX, u64::MAX), u64::MAX - 1);
     }
 }

@@ -14,7 +14,7 @@
 //!    zero or exactly one half (then path 3 decides).
 //! 3. everything else, exactly, with big integers ([`super::exact`]).
 
-use super::{exact, pow10};
+use super::{exact, mul_high, pow10};
 
 /// The f32 nearest to the decimal number `text` (ties to even), as
 /// `str::parse::<f32>` rounds it; `None` if `text` is not decimal notation:
@@ -205,17 +205,4 @@ pub(super) fn finish(mantissa: u64, exp: i32) -> f32 {
         Ok(b) if b < 0x7F80_0000 => f32::from_bits(b),
         _ => f32::INFINITY,
     }
-}
-
-/// The high 64 bits of the 128-bit product `a · b`, from 32-bit halves (a
-/// 32-bit core has no 64×64 multiplication).
-fn mul_high(a: u64, b: u64) -> u64 {
-    const LOW: u64 = 0xFFFF_FFFF;
-    let (a1, a0) = (a >> 32, a & LOW);
-    let (b1, b0) = (b >> 32, b & LOW);
-    let low = a0 * b0;
-    let cross1 = a0 * b1;
-    let cross2 = a1 * b0;
-    let middle = (low >> 32) + (cross1 & LOW) + (cross2 & LOW);
-    a1 * b1 + (cross1 >> 32) + (cross2 >> 32) + (middle >> 32)
 }
