@@ -79,25 +79,27 @@ impl Sink<'_> {
     /// response.
     fn quoted(&mut self, lead: Option<u8>, s: &str, trail: Option<u8>) {
         let text = s.as_bytes();
-        if !plain(text) {
+        let at = usize::from(lead.is_some());
+        let end = at + 1 + text.len();
+        let start = self.len;
+        let Some(dst) = self.room(end + 1 + usize::from(trail.is_some())) else {
+            return;
+        };
+        let plain = dst.get_mut(at + 1..end).is_some_and(|d| copy_plain(d, text));
+        if plain {
+            if let Some(b) = lead {
+                put(dst, 0, b);
+            }
+            put(dst, at, b'"');
+            put(dst, end, b'"');
+            if let Some(b) = trail {
+                put(dst, end + 1, b);
+            }
+        } else {
+            self.len = start;
             lead.map(|b| self.byte(b));
             self.string(&[s]);
             trail.map(|b| self.byte(b));
-            return;
-        }
-        let at = usize::from(lead.is_some());
-        let n = at + text.len() + 2 + usize::from(trail.is_some());
-        let Some(dst) = self.room(n) else {
-            return;
-        };
-        let end = at + 1 + text.len();
-        for (i, b) in [(0, lead), (at, Some(b'"')), (end, Some(b'"')), (end + 1, trail)] {
-            if let (Some(slot), Some(b)) = (dst.get_mut(i), b) {
-                *slot = b;
-            }
-        }
-        if let Some(d) = dst.get_mut(at + 1..end) {
-            d.copy_from_slice(text);
         }
     }
 
@@ -126,100 +128,50 @@ impl Sink<'_> {
         self.bytes(bytes.get(start..).unwrap_or_default());
     }
 
-    fn uint(&mut self, v: u64) {
-        // 32-bit cores have no 64-bit division: split by multiplication
-        // into eight-digit groups (a millisecond timestamp has two).
-        const GROUP: u64 = 100_000_000;
-        if v < GROUP {
-            return self.digits(v as u32);
-        }
-        let high = number::div_1e8(v);
-        let low = (v - high * GROUP) as u32;
-        if high < GROUP {
-            self.digits(high as u32);
+    /// A scalar member or element: `,` if `comma`, `"key":` if there is a
+    /// key, then the at most `MAX` bytes `value` writes. One capacity check
+    /// for all of it while there is room for the most it can take (nearly
+    /// always); piece by piece near the end of the buffer, or for a key
+    /// that needs escapes.
+    fn scalar<const MAX: usize>(
+        &mut self,
+        comma: bool,
+        key: Option<&str>,
+        value: impl FnOnce(&mut [u8; MAX]) -> usize,
+    ) {
+        let need = key.map_or(0, |k| k.len() + 3) + 1 + MAX;
+        let room = if self.overflow {
+            None
         } else {
-            let top = number::div_1e8(high);
-            self.digits(top as u32);
-            self.eight((high - top * GROUP) as u32);
-        }
-        self.eight(low);
-    }
-
-    /// `v` (below 10^8) in decimal.
-    fn digits(&mut self, v: u32) {
-        if v < 10 {
-            return self.byte(b'0' + v as u8);
-        }
-        if v < 100 {
-            return self.bytes(&number::pair(v));
-        }
-        let n = number::digit_count(v);
-        // The n last of the eight digits, moved to the front.
-        let text = u64::from_le_bytes(number::eight_digits(v)) >> (8 * (8 - n));
-        self.up_to_eight(text.to_le_bytes(), n);
-    }
-
-    /// `v` (below 10^8) as exactly eight digits.
-    fn eight(&mut self, v: u32) {
-        self.up_to_eight(number::eight_digits(v), 8);
-    }
-
-    /// The first `n` of `bytes`: all eight stored at once when there is
-    /// room (what follows `n` is overwritten by whatever comes next).
-    fn up_to_eight(&mut self, bytes: [u8; 8], n: usize) {
-        let room = self.buf.get_mut(self.len..).and_then(|rest| rest.first_chunk_mut::<8>());
-        match room {
-            Some(dst) if !self.overflow => {
-                *dst = bytes;
-                self.len += n;
+            self.buf.get_mut(self.len..).filter(|rest| rest.len() >= need)
+        };
+        if let Some(rest) = room {
+            put(rest, 0, b',');
+            let at = usize::from(comma);
+            let at = match key {
+                Some(key) => put_key(rest, at, key.as_bytes()),
+                None => Some(at),
+            };
+            if let Some(dst) = at.and_then(|at| rest.get_mut(at..)).and_then(|r| r.first_chunk_mut::<MAX>()) {
+                let n = value(dst);
+                self.len += at.unwrap_or_default() + n;
+                return;
             }
-            _ => self.bytes(bytes.get(..n).unwrap_or_default()),
         }
+        if comma {
+            self.byte(b',');
+        }
+        if let Some(key) = key {
+            self.string(&[key]);
+            self.byte(b':');
+        }
+        let mut text = [0; MAX];
+        let n = value(&mut text);
+        self.bytes(text.get(..n).unwrap_or_default());
     }
 
     fn int(&mut self, v: i64) {
-        if v < 0 {
-            self.byte(b'-');
-        }
-        self.uint(v.unsigned_abs());
-    }
-
-    fn bool(&mut self, v: bool) {
-        self.bytes(if v { b"true" } else { b"false" });
-    }
-
-    /// Shortest round-trip text (Ryu: `1.5`, `-10.0`, `1e30`); JSON has no
-    /// NaN or infinity, so those become `null`. Only host backends write
-    /// doubles; a firmware that never does links none of Ryu.
-    fn f64(&mut self, v: f64) {
-        if v.is_finite() {
-            self.bytes(ryu::Buffer::new().format_finite(v).as_bytes());
-        } else {
-            self.bytes(b"null");
-        }
-    }
-
-    /// Shortest round-trip text (`0.1`, `-10.0`, `1e30`: the number
-    /// module, the same text as Ryu); JSON has no NaN or infinity, so those
-    /// become `null`.
-    fn f32(&mut self, v: f32) {
-        if !v.is_finite() {
-            self.bytes(b"null");
-            return;
-        }
-        if self.overflow {
-            return;
-        }
-        let room = self.buf.get_mut(self.len..);
-        match room.and_then(|rest| rest.first_chunk_mut::<{ number::MAX_LEN }>()) {
-            // In place when there is room for the longest text.
-            Some(room) => self.len += number::write_f32(v, room),
-            None => {
-                let mut text = [0; number::MAX_LEN];
-                let len = number::write_f32(v, &mut text);
-                self.bytes(text.get(..len).unwrap_or_default());
-            }
-        }
+        self.scalar(false, None, |d| number::write_i64(v, d));
     }
 
     fn serialize<T: Serialize + ?Sized>(&mut self, value: &T) {
@@ -311,24 +263,84 @@ fn needs_escape(b: u8) -> bool {
     b < 0x20 || b == b'"' || b == b'\\'
 }
 
-/// Whether no byte of `bytes` [`needs_escape`], eight at a time (the last
-/// eight overlapping those before when the length is not a multiple).
-fn plain(bytes: &[u8]) -> bool {
-    match bytes.last_chunk::<8>() {
-        None => !bytes.iter().any(|&b| needs_escape(b)),
-        Some(last) => {
-            let mut chunks = bytes.chunks_exact(8);
-            !(&mut chunks).any(|c| c.first_chunk::<8>().is_some_and(|w| word_escapes(*w)))
-                && (chunks.remainder().is_empty() || !word_escapes(*last))
+/// Copies `src` into `dst` (of the same length); whether no byte of it
+/// [`needs_escape`]. Short strings (keys) in two overlapping loads, longer
+/// ones eight bytes at a time; never byte by byte.
+#[inline]
+fn copy_plain(dst: &mut [u8], src: &[u8]) -> bool {
+    let n = src.len();
+    let Some(dst) = dst.get_mut(..n) else {
+        return false;
+    };
+    if n >= 8 {
+        return copy_plain_long(dst, src);
+    }
+    let word = if let (Some(first), Some(last)) = (src.first_chunk::<4>(), src.last_chunk::<4>()) {
+        // 4 to 7 bytes.
+        if let Some(d) = dst.first_chunk_mut::<4>() {
+            *d = *first;
         }
+        if let Some(d) = dst.last_chunk_mut::<4>() {
+            *d = *last;
+        }
+        u64::from(u32::from_le_bytes(*first)) | u64::from(u32::from_le_bytes(*last)) << 32
+    } else if let (Some(&a), Some(&b), Some(&c)) = (src.first(), src.get(n / 2), src.last()) {
+        // 1 to 3 bytes: the first, middle and last are all of them.
+        put(dst, 0, a);
+        put(dst, n / 2, b);
+        put(dst, n - 1, c);
+        u64::from_le_bytes([a, b, c, b' ', b' ', b' ', b' ', b' '])
+    } else {
+        return true;
+    };
+    !word_escapes(word)
+}
+
+/// [`copy_plain`] for eight bytes and more (out of line: the short case is
+/// the hot one, and small).
+#[inline(never)]
+fn copy_plain_long(dst: &mut [u8], src: &[u8]) -> bool {
+    let mut escapes = false;
+    for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
+        if let (Some(d), Some(s)) = (d.first_chunk_mut::<8>(), s.first_chunk::<8>()) {
+            escapes |= word_escapes(u64::from_le_bytes(*s));
+            *d = *s;
+        }
+    }
+    // The last eight, overlapping those before.
+    if let (Some(d), Some(s)) = (dst.last_chunk_mut::<8>(), src.last_chunk::<8>()) {
+        escapes |= word_escapes(u64::from_le_bytes(*s));
+        *d = *s;
+    }
+    !escapes
+}
+
+/// Writes `"key":` at `at` into `dst` (which has the room); where it ends,
+/// or `None` if the key needs escapes.
+#[inline]
+fn put_key(dst: &mut [u8], at: usize, key: &[u8]) -> Option<usize> {
+    let end = at + 1 + key.len();
+    if !dst.get_mut(at + 1..end).is_some_and(|d| copy_plain(d, key)) {
+        return None;
+    }
+    put(dst, at, b'"');
+    put(dst, end, b'"');
+    put(dst, end + 1, b':');
+    Some(end + 2)
+}
+
+/// Writes `b` at `at` (the caller has made the room).
+#[inline]
+fn put(dst: &mut [u8], at: usize, b: u8) {
+    if let Some(slot) = dst.get_mut(at) {
+        *slot = b;
     }
 }
 
-/// Whether any of eight bytes [`needs_escape`].
-fn word_escapes(bytes: [u8; 8]) -> bool {
+/// Whether any of the eight bytes of `x` [`needs_escape`].
+fn word_escapes(x: u64) -> bool {
     const ONES: u64 = 0x0101_0101_0101_0101;
     const HIGH: u64 = 0x8080_8080_8080_8080;
-    let x = u64::from_le_bytes(bytes);
     // A byte's high bit is set where that byte of `x` is zero (exact as to
     // whether any is).
     let zero = |x: u64| x.wrapping_sub(ONES) & !x & HIGH;
@@ -342,7 +354,7 @@ fn first_escape(bytes: &[u8]) -> Option<usize> {
     let mut chunks = bytes.chunks_exact(8);
     let mut offset = 0;
     for chunk in &mut chunks {
-        if chunk.first_chunk::<8>().is_some_and(|w| word_escapes(*w)) {
+        if chunk.first_chunk::<8>().is_some_and(|w| word_escapes(u64::from_le_bytes(*w))) {
             return chunk.iter().position(|&b| needs_escape(b)).map(|i| offset + i);
         }
         offset += 8;
@@ -371,7 +383,7 @@ pub struct Items<'b> {
 }
 
 macro_rules! value_writers {
-    ($ty:ident, $lead:ident ($($key:ident: &str)?)) => {
+    ($ty:ident, $lead:ident, $scalar:ident ($($key:ident: &str)?)) => {
         impl $ty<'_> {
             /// A string.
             pub fn str(&mut self, $($key: &str,)? v: &str) -> &mut Self {
@@ -381,38 +393,32 @@ macro_rules! value_writers {
             }
             /// A signed integer.
             pub fn i64(&mut self, $($key: &str,)? v: i64) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.int(v);
+                self.$scalar($($key,)? |d| number::write_i64(v, d));
                 self
             }
             /// An unsigned integer.
             pub fn u64(&mut self, $($key: &str,)? v: u64) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.uint(v);
+                self.$scalar($($key,)? |d| number::write_u64(v, d));
                 self
             }
             /// A double; NaN and infinities are written as `null`.
             pub fn f64(&mut self, $($key: &str,)? v: f64) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.f64(v);
+                self.$scalar($($key,)? |d| write_f64(v, d));
                 self
             }
             /// A float; NaN and infinities are written as `null`.
             pub fn f32(&mut self, $($key: &str,)? v: f32) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.f32(v);
+                self.$scalar($($key,)? |d| write_f32(v, d));
                 self
             }
             /// A boolean.
             pub fn bool(&mut self, $($key: &str,)? v: bool) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.bool(v);
+                self.$scalar($($key,)? |d: &mut [u8; 5]| put_all(d, if v { b"true" } else { b"false" }));
                 self
             }
             /// `null`.
             pub fn null(&mut self $(, $key: &str)?) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.bytes(b"null");
+                self.$scalar($($key,)? |d: &mut [u8; 4]| put_all(d, b"null"));
                 self
             }
             /// Any serde-serialisable value, written by serde-json-core.
@@ -447,8 +453,37 @@ macro_rules! value_writers {
     };
 }
 
-value_writers!(Fields, member(key: &str));
-value_writers!(Items, element());
+value_writers!(Fields, member, field(key: &str));
+value_writers!(Items, element, item());
+
+/// Shortest round-trip text (`0.1`, `-10.0`, `1e30`: [`crate::number`],
+/// the same text as Ryu); JSON has no NaN or infinity, so those are `null`.
+fn write_f32(v: f32, out: &mut [u8; number::MAX_LEN]) -> usize {
+    if v.is_finite() {
+        number::write_f32(v, out)
+    } else {
+        put_all(out, b"null")
+    }
+}
+
+/// Shortest round-trip text by Ryu (`1.5`, `-10.0`, `1e300`), or `null`.
+/// Only host backends write doubles; a firmware that never does links
+/// none of Ryu.
+fn write_f64(v: f64, out: &mut [u8; 24]) -> usize {
+    if v.is_finite() {
+        put_all(out, ryu::Buffer::new().format_finite(v).as_bytes())
+    } else {
+        put_all(out, b"null")
+    }
+}
+
+/// Copies `bytes` to the start of `out`; returns how many.
+fn put_all(out: &mut [u8], bytes: &[u8]) -> usize {
+    if let Some(dst) = out.get_mut(..bytes.len()) {
+        dst.copy_from_slice(bytes);
+    }
+    bytes.len()
+}
 
 impl<'b> Fields<'b> {
     /// A writer for the members that follow `"ts":..` in a response
@@ -487,6 +522,11 @@ impl<'b> Fields<'b> {
         self.sink.quoted(lead, key, Some(b':'));
     }
 
+    fn field<const MAX: usize>(&mut self, key: &str, value: impl FnOnce(&mut [u8; MAX]) -> usize) {
+        let comma = !core::mem::take(&mut self.first);
+        self.sink.scalar(comma, Some(key), value);
+    }
+
     /// Whether everything written so far fitted.
     pub fn fits(&self) -> bool {
         !self.sink.overflow
@@ -504,6 +544,11 @@ impl Items<'_> {
             self.sink.byte(b',');
         }
     }
+
+    fn item<const MAX: usize>(&mut self, value: impl FnOnce(&mut [u8; MAX]) -> usize) {
+        let comma = !core::mem::take(&mut self.first);
+        self.sink.scalar(comma, None, value);
+    }
 }
 
 /// Writes `{"ret":..,"cmd":..,"ts":..` and returns the head's length, or
@@ -519,7 +564,7 @@ fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
     s.bytes(br#"{"ret":"#);
     s.int(i64::from(ret.code()));
     s.bytes(br#","cmd":"#);
-    s.uint(u64::from(cmd));
+    s.int(i64::from(cmd));
     s.bytes(br#","ts":"#);
     s.int(ts);
     (!s.overflow).then_some(s.len)

@@ -54,6 +54,62 @@ pub(crate) fn eight_digits(v: u32) -> [u8; 8] {
     (x + 0x3030_3030_3030_3030).to_le_bytes()
 }
 
+/// Room for [`write_u64`] and [`write_i64`]: 20 characters, and the spare
+/// bytes their eight-byte stores may write beyond.
+pub(crate) const INT_ROOM: usize = 24;
+
+/// Writes `v` in decimal at the start of `out`; returns the length.
+pub(crate) fn write_u64(v: u64, out: &mut [u8; INT_ROOM]) -> usize {
+    digits_at(v, out, 0)
+}
+
+/// Writes `v` in decimal at the start of `out`; returns the length.
+pub(crate) fn write_i64(v: i64, out: &mut [u8; INT_ROOM]) -> usize {
+    let sign = usize::from(v < 0);
+    if let Some(first) = out.first_mut() {
+        *first = b'-';
+    }
+    digits_at(v.unsigned_abs(), out, sign)
+}
+
+/// Writes the digits of `v` at `at`; returns where they end.
+fn digits_at(v: u64, out: &mut [u8; INT_ROOM], at: usize) -> usize {
+    // 32-bit cores have no 64-bit division: split by multiplication into
+    // a top below 10^8 and up to two eight-digit groups (a millisecond
+    // timestamp has one).
+    const GROUP: u64 = 100_000_000;
+    let (top, first, second, groups) = if v < GROUP {
+        (v, 0, 0, 0)
+    } else {
+        let high = div_1e8(v);
+        let low = (v - high * GROUP) as u32;
+        if high < GROUP {
+            (high, low, 0, 1)
+        } else {
+            let top = div_1e8(high);
+            (top, (high - top * GROUP) as u32, low, 2)
+        }
+    };
+    // The n digits of the top are the last n of its eight.
+    let top = top as u32;
+    let n = digit_count(top);
+    let text = u64::from_le_bytes(eight_digits(top)) >> (8 * (8 - n));
+    put8(out, at, text.to_le_bytes());
+    if groups >= 1 {
+        put8(out, at + n, eight_digits(first));
+    }
+    if groups == 2 {
+        put8(out, at + n + 8, eight_digits(second));
+    }
+    at + n + 8 * groups
+}
+
+fn put8(out: &mut [u8], at: usize, bytes: [u8; 8]) {
+    if let Some(dst) = out.get_mut(at..).and_then(|rest| rest.first_chunk_mut::<8>()) {
+        *dst = bytes;
+    }
+}
+
 /// How many decimal digits `v` has (one for zero).
 pub(crate) fn digit_count(v: u32) -> usize {
     // ⌊log10 2^bits⌋, or one more.
