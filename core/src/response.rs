@@ -69,7 +69,12 @@ impl Sink<'_> {
     fn string(&mut self, parts: &[&str]) {
         self.byte(b'"');
         for part in parts {
-            self.escaped(part);
+            let start = self.len;
+            let plain = self.room(part.len()).is_some_and(|dst| copy_plain(dst, part.as_bytes()));
+            if !plain {
+                self.len = start;
+                self.escaped(part);
+            }
         }
         self.byte(b'"');
     }

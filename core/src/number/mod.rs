@@ -74,6 +74,15 @@ pub(crate) fn write_i64(v: i64, out: &mut [u8; INT_ROOM]) -> usize {
 
 /// Writes the digits of `v` at `at`; returns where they end.
 fn digits_at(v: u64, out: &mut [u8; INT_ROOM], at: usize) -> usize {
+    if v < 100 {
+        // Codes and small counts: one or two digits (the second written
+        // over the first when there is only one).
+        let [tens, units] = pair(v as u32);
+        let two = usize::from(v >= 10);
+        put(out, at, tens);
+        put(out, at + two, units);
+        return at + 1 + two;
+    }
     // 32-bit cores have no 64-bit division: split by multiplication into
     // a top below 10^8 and up to two eight-digit groups (a millisecond
     // timestamp has one).
@@ -102,6 +111,12 @@ fn digits_at(v: u64, out: &mut [u8; INT_ROOM], at: usize) -> usize {
         put8(out, at + n + 8, eight_digits(second));
     }
     at + n + 8 * groups
+}
+
+fn put(out: &mut [u8], at: usize, b: u8) {
+    if let Some(slot) = out.get_mut(at) {
+        *slot = b;
+    }
 }
 
 fn put8(out: &mut [u8], at: usize, bytes: [u8; 8]) {

@@ -7,6 +7,8 @@ use heapless::Vec;
 use crate::error::ArgError;
 use crate::number::parse_f32;
 
+use super::scan::{cut, split};
+
 /// A finite decimal number that fits an `f32`, correctly rounded:
 /// `[+-]? (digits ('.' digits?)? | '.' digits) ([eE] [+-]? digits)?`, so
 /// `nan`, `inf` and hex never get through.
@@ -78,28 +80,38 @@ pub(crate) fn flag(token: &str) -> Result<bool, ArgError> {
 /// first field that fails to convert decides the error.
 pub(crate) fn list<T, const N: usize>(
     input: &str,
-    sep: char,
+    sep: u8,
     item: impl Fn(&str) -> Result<T, ArgError>,
 ) -> Result<Vec<T, N>, ArgError> {
     // Filled in place: a fixed-capacity vector moved per field would be
     // copied whole each time.
     let mut items = Vec::new();
-    for token in input.split(sep) {
+    for token in split(input, sep) {
         items.push(item(token)?).map_err(|_| ArgError::TooMany)?;
     }
     Ok(items)
 }
 
 /// Exactly `N` numbers separated by `sep`.
-pub(crate) fn numbers<const N: usize>(input: &str, sep: char) -> Result<[f32; N], ArgError> {
-    let v = list::<f32, N>(input, sep, float).map_err(|e| match e {
-        ArgError::TooMany => ArgError::Malformed,
-        other => other,
-    })?;
-    v.into_array().map_err(|_| ArgError::Malformed)
+pub(crate) fn numbers<const N: usize>(input: &str, sep: u8) -> Result<[f32; N], ArgError> {
+    let mut values = [0.0; N];
+    let mut count = 0;
+    for token in split(input, sep) {
+        let v = float(token)?;
+        *values.get_mut(count).ok_or(ArgError::Malformed)? = v;
+        count += 1;
+    }
+    if count == N {
+        Ok(values)
+    } else {
+        Err(ArgError::Malformed)
+    }
 }
 
 /// Splits at the first `sep`: `(head, tail)`; no `sep` is malformed.
-pub(crate) fn split_first(input: &str, sep: char) -> Result<(&str, &str), ArgError> {
-    input.split_once(sep).ok_or(ArgError::Malformed)
+pub(crate) fn split_first(input: &str, sep: u8) -> Result<(&str, &str), ArgError> {
+    match cut(input, sep) {
+        (head, Some(tail)) => Ok((head, tail)),
+        (_, None) => Err(ArgError::Malformed),
+    }
 }

@@ -13,6 +13,7 @@
 mod fields;
 mod json;
 pub(crate) mod rules;
+mod scan;
 
 pub use json::MAX_JSON_DEPTH;
 pub use rules::{MAX_IDENT_LEN, MAX_NAME_LEN, MAX_PASSWORD_LEN, MAX_PATH_LEN};
@@ -32,20 +33,17 @@ pub struct Split<'a> {
 
 /// Cuts a frame into name and arguments; `None` for an empty or blank frame.
 pub fn split(frame: &str) -> Option<Split<'_>> {
-    let frame = frame.trim_end_matches([' ', '\r', '\n']);
-    if frame.is_empty() {
-        return None;
-    }
-    Some(match frame.split_once(' ') {
-        Some((name, args)) => Split {
-            name,
-            args: Some(args),
-        },
-        None => Split {
-            name: frame,
-            args: None,
-        },
-    })
+    let bytes = frame.as_bytes();
+    let trailing = |b: &u8| matches!(b, b' ' | b'\r' | b'\n');
+    // Mostly nothing to trim: look at the last byte before searching.
+    let end = if bytes.last().is_some_and(trailing) {
+        bytes.iter().rposition(|b| !trailing(b))? + 1
+    } else {
+        bytes.len()
+    };
+    let frame = frame.get(..end).filter(|f| !f.is_empty())?;
+    let (name, args) = scan::cut(frame, b' ');
+    Some(Split { name, args })
 }
 
 /// Parses one text frame into a [`Command`].
@@ -88,43 +86,43 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
         Grammar::NewPassword => Args::NewPassword(rules::new_password(a)?),
         Grammar::ParamName => Args::ParamName(rules::param_name(a)?),
         Grammar::SetParam => {
-            let (name, value) = fields::split_first(a, ':')?;
+            let (name, value) = fields::split_first(a, b':')?;
             Args::SetParam {
                 name: rules::param_name(name)?,
                 value: rules::text(value)?,
             }
         }
         Grammar::Setpoint => {
-            let [x, y, z, yaw] = fields::numbers(a, ':')?;
+            let [x, y, z, yaw] = fields::numbers(a, b':')?;
             Args::Setpoint(Pose { x, y, z, yaw })
         }
         Grammar::Point => {
-            let [x, y, z] = fields::numbers(a, ':')?;
+            let [x, y, z] = fields::numbers(a, b':')?;
             Args::Point(Point { x, y, z })
         }
         Grammar::Pose => {
-            let [x, y, z, yaw] = fields::numbers(a, ',')?;
+            let [x, y, z, yaw] = fields::numbers(a, b',')?;
             Args::Pose(Pose { x, y, z, yaw })
         }
         Grammar::Zyhk => {
-            let (heights, land) = match fields::split_first(a, ' ') {
+            let (heights, land) = match fields::split_first(a, b' ') {
                 Ok((heights, land)) => (heights, Some(land)),
                 Err(_) => (a, None),
             };
             let land = match land {
                 Some(l) => {
-                    let [x, y, yaw] = fields::numbers(l, ',')?;
+                    let [x, y, yaw] = fields::numbers(l, b',')?;
                     Some(LandPoint { x, y, yaw })
                 }
                 None => None,
             };
             Args::Zyhk {
-                heights: fields::list(heights, ',', fields::float)?,
+                heights: fields::list(heights, b',', fields::float)?,
                 land,
             }
         }
         Grammar::Mission => {
-            let (ext_id, payload) = fields::split_first(a, ':')?;
+            let (ext_id, payload) = fields::split_first(a, b':')?;
             let payload = if payload.starts_with(['{', '[']) {
                 Payload::Json(rules::json(payload)?)
             } else {
@@ -136,14 +134,14 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
             }
         }
         Grammar::MwExec => {
-            let (ext_id, ids) = fields::split_first(a, ':')?;
+            let (ext_id, ids) = fields::split_first(a, b':')?;
             Args::MwExec {
                 ext_id: fields::uint(ext_id)?,
-                wp_ids: fields::list(ids, ',', fields::uint)?,
+                wp_ids: fields::list(ids, b',', fields::uint)?,
             }
         }
         Grammar::Ai1Mission => {
-            let (task_id, file) = fields::split_first(a, ':')?;
+            let (task_id, file) = fields::split_first(a, b':')?;
             Args::Ai1Mission {
                 task_id: rules::task_id(task_id)?,
                 file: rules::path(file)?,
