@@ -136,33 +136,54 @@ impl Sink<'_> {
     /// A scalar member or element: `,` if `comma`, `"key":` if there is a
     /// key, then the at most `MAX` bytes `value` writes. One capacity check
     /// for all of it while there is room for the most it can take (nearly
-    /// always); piece by piece near the end of the buffer, or for a key
-    /// that needs escapes.
+    /// always).
+    #[inline]
     fn scalar<const MAX: usize>(
         &mut self,
         comma: bool,
         key: Option<&str>,
         value: impl FnOnce(&mut [u8; MAX]) -> usize,
     ) {
-        let need = key.map_or(0, |k| k.len() + 3) + 1 + MAX;
-        let room = if self.overflow {
-            None
-        } else {
-            self.buf.get_mut(self.len..).filter(|rest| rest.len() >= need)
-        };
-        if let Some(rest) = room {
-            put(rest, 0, b',');
-            let at = usize::from(comma);
-            let at = match key {
-                Some(key) => put_key(rest, at, key.as_bytes()),
-                None => Some(at),
-            };
-            if let Some(dst) = at.and_then(|at| rest.get_mut(at..)).and_then(|r| r.first_chunk_mut::<MAX>()) {
-                let n = value(dst);
-                self.len += at.unwrap_or_default() + n;
-                return;
-            }
+        let room = self.lead_and_room(comma, key, MAX);
+        match room.and_then(|at| Some((at, self.buf.get_mut(at..)?.first_chunk_mut::<MAX>()?))) {
+            Some((at, dst)) => self.len = at + value(dst),
+            None => self.scalar_in_pieces(comma, key, value),
         }
+    }
+
+    /// Writes `,` if `comma` and `"key":` if there is a key, when there is
+    /// room for them and `value_max` bytes after them; returns where the
+    /// value goes. Inlined, so that a constant key is checked for escapes
+    /// and copied at compile time. `None` when out of room or the key needs
+    /// escapes: then nothing was written.
+    #[inline]
+    fn lead_and_room(&mut self, comma: bool, key: Option<&str>, value_max: usize) -> Option<usize> {
+        if self.overflow {
+            return None;
+        }
+        let rest = self.buf.get_mut(self.len..)?;
+        if rest.len() < key.map_or(0, |k| k.len() + 3) + 1 + value_max {
+            return None;
+        }
+        put(rest, 0, b',');
+        let at = usize::from(comma);
+        let at = match key {
+            Some(key) => put_key(rest, at, key.as_bytes())?,
+            None => at,
+        };
+        Some(self.len + at)
+    }
+
+    /// [`Sink::scalar`] near the end of the buffer, or with a key that
+    /// needs escapes.
+    #[cold]
+    #[inline(never)]
+    fn scalar_in_pieces<const MAX: usize>(
+        &mut self,
+        comma: bool,
+        key: Option<&str>,
+        value: impl FnOnce(&mut [u8; MAX]) -> usize,
+    ) {
         if comma {
             self.byte(b',');
         }
@@ -343,6 +364,7 @@ fn put(dst: &mut [u8], at: usize, b: u8) {
 }
 
 /// Whether any of the eight bytes of `x` [`needs_escape`].
+#[inline]
 fn word_escapes(x: u64) -> bool {
     const ONES: u64 = 0x0101_0101_0101_0101;
     const HIGH: u64 = 0x8080_8080_8080_8080;
@@ -391,37 +413,44 @@ macro_rules! value_writers {
     ($ty:ident, $lead:ident, $scalar:ident ($($key:ident: &str)?)) => {
         impl $ty<'_> {
             /// A string.
+            #[inline]
             pub fn str(&mut self, $($key: &str,)? v: &str) -> &mut Self {
                 self.$lead($($key)?);
                 self.sink.quoted(None, v, None);
                 self
             }
             /// A signed integer.
+            #[inline]
             pub fn i64(&mut self, $($key: &str,)? v: i64) -> &mut Self {
                 self.$scalar($($key,)? |d| number::write_i64(v, d));
                 self
             }
             /// An unsigned integer.
+            #[inline]
             pub fn u64(&mut self, $($key: &str,)? v: u64) -> &mut Self {
                 self.$scalar($($key,)? |d| number::write_u64(v, d));
                 self
             }
             /// A double; NaN and infinities are written as `null`.
+            #[inline]
             pub fn f64(&mut self, $($key: &str,)? v: f64) -> &mut Self {
                 self.$scalar($($key,)? |d| write_f64(v, d));
                 self
             }
             /// A float; NaN and infinities are written as `null`.
+            #[inline]
             pub fn f32(&mut self, $($key: &str,)? v: f32) -> &mut Self {
                 self.$scalar($($key,)? |d| write_f32(v, d));
                 self
             }
             /// A boolean.
+            #[inline]
             pub fn bool(&mut self, $($key: &str,)? v: bool) -> &mut Self {
                 self.$scalar($($key,)? |d: &mut [u8; 5]| put_all(d, if v { b"true" } else { b"false" }));
                 self
             }
             /// `null`.
+            #[inline]
             pub fn null(&mut self $(, $key: &str)?) -> &mut Self {
                 self.$scalar($($key,)? |d: &mut [u8; 4]| put_all(d, b"null"));
                 self
@@ -527,6 +556,7 @@ impl<'b> Fields<'b> {
         self.sink.quoted(lead, key, Some(b':'));
     }
 
+    #[inline]
     fn field<const MAX: usize>(&mut self, key: &str, value: impl FnOnce(&mut [u8; MAX]) -> usize) {
         let comma = !core::mem::take(&mut self.first);
         self.sink.scalar(comma, Some(key), value);
@@ -550,6 +580,7 @@ impl Items<'_> {
         }
     }
 
+    #[inline]
     fn item<const MAX: usize>(&mut self, value: impl FnOnce(&mut [u8; MAX]) -> usize) {
         let comma = !core::mem::take(&mut self.first);
         self.sink.scalar(comma, None, value);
