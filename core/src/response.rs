@@ -13,9 +13,7 @@ use serde::Serialize;
 use crate::error::{Failure, Ret};
 use crate::number;
 
-/// Room kept at the start of the buffer for `{"ret":..,"cmd":..,"ts":..`,
-/// which is written after the backend's fields (ret and ts are only known
-/// then) and moved in front of them.
+/// The longest head, `{"ret":..,"cmd":..,"ts":..`.
 pub(crate) const HEAD_RESERVE: usize = r#"{"ret":-100,"cmd":255,"ts":-9223372036854775808"#.len();
 
 /// The smallest response buffer every error response fits in: the longest
@@ -196,6 +194,16 @@ impl Sink<'_> {
         self.bytes(text.get(..n).unwrap_or_default());
     }
 
+    /// `{"ret":..,"cmd":..,"ts":..`.
+    fn head(&mut self, ret: Ret, cmd: u8, ts: i64) {
+        self.bytes(br#"{"ret":"#);
+        self.int(i64::from(ret.code()));
+        self.bytes(br#","cmd":"#);
+        self.int(i64::from(cmd));
+        self.bytes(br#","ts":"#);
+        self.int(ts);
+    }
+
     fn int(&mut self, v: i64) {
         self.scalar(false, None, |d| number::write_i64(v, d));
     }
@@ -240,8 +248,9 @@ impl Sink<'_> {
         self.len = self.origin;
         self.overflow = false;
         self.bytes(br#","msg":""#);
-        // Room for the closing quote and brace.
-        let limit = self.buf.len().saturating_sub(2);
+        // Room for the closing quote and brace, and for the head to grow
+        // when `ret` is written into it.
+        let limit = self.buf.len().saturating_sub(2 + RET_GROWTH);
         let mut w = Bounded {
             sink: self,
             limit,
@@ -520,19 +529,21 @@ fn put_all(out: &mut [u8], bytes: &[u8]) -> usize {
 }
 
 impl<'b> Fields<'b> {
-    /// A writer for the members that follow `"ts":..` in a response
-    /// written into `buf` from `start` on.
-    pub(crate) fn after_head(buf: &'b mut [u8], start: usize) -> Self {
-        Fields {
-            sink: Sink {
-                buf,
-                len: start,
-                overflow: false,
-                origin: start,
-                failed_at: None,
-            },
-            first: false,
-        }
+    /// A writer for the members of the response to `cmd` at `ts`, written
+    /// into `buf` after the head `{"ret":0,"cmd":..,"ts":..`, which it
+    /// writes first ([`finish`] corrects `ret` if the command fails), so
+    /// that a successful response is never moved.
+    pub(crate) fn after_head(buf: &'b mut [u8], cmd: u8, ts: i64) -> Self {
+        let mut sink = Sink {
+            buf,
+            len: 0,
+            overflow: false,
+            origin: 0,
+            failed_at: None,
+        };
+        sink.head(Ret::Ok, cmd, ts);
+        sink.origin = sink.len;
+        Fields { sink, first: false }
     }
 
     /// Fails the command with `ret` and a message written whole into the
@@ -597,29 +608,38 @@ fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
         origin: 0,
         failed_at: None,
     };
-    s.bytes(br#"{"ret":"#);
-    s.int(i64::from(ret.code()));
-    s.bytes(br#","cmd":"#);
-    s.int(i64::from(cmd));
-    s.bytes(br#","ts":"#);
-    s.int(ts);
+    s.head(ret, cmd, ts);
     (!s.overflow).then_some(s.len)
 }
 
-/// Completes a response whose members were written by [`Fields::after_head`]
-/// from [`HEAD_RESERVE`] to `body_end` (the command's fields, or the `msg`
-/// of [`Fields::fail`]): writes the head, moves the members behind it and
-/// closes the object. Returns the response length, or `None` if it does not
-/// fit.
+/// How much longer the head gets when `ret` 0 is rewritten as a failure's
+/// (`-100` at most).
+const RET_GROWTH: usize = 3;
+
+/// Completes a response whose head [`Fields::after_head`] wrote with `ret`
+/// 0 and whose members (the command's fields, or the `msg` of
+/// [`Fields::fail`]) end at `body_end`: closes the object, after rewriting
+/// the head with `ret` if that is not 0. Returns the response length, or
+/// `None` if it does not fit.
 pub(crate) fn finish(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, body_end: usize) -> Option<usize> {
-    // The closing brace needs one byte after the body.
-    buf.get(body_end)?;
-    // The head fits the room reserved before the body.
-    let head_len = head(buf.get_mut(..HEAD_RESERVE)?, ret, cmd, ts)?;
-    let body = HEAD_RESERVE..body_end;
-    let body_len = body.len();
-    buf.copy_within(body, head_len);
-    let end = head_len + body_len;
+    if ret == Ret::Ok {
+        *buf.get_mut(body_end)? = b'}';
+        return Some(body_end + 1);
+    }
+    // A failure with a message written in place: the head grows by up to
+    // RET_GROWTH bytes, so the message moves right (rare, and short).
+    let mut old = [0u8; HEAD_RESERVE];
+    let old_len = head(&mut old, Ret::Ok, cmd, ts)?;
+    let mut new = [0u8; HEAD_RESERVE];
+    let new_len = head(&mut new, ret, cmd, ts)?;
+    let shift = new_len.checked_sub(old_len)?;
+    let end = body_end + shift;
+    buf.get(end)?;
+    for i in (old_len..body_end).rev() {
+        let b = *buf.get(i)?;
+        *buf.get_mut(i + shift)? = b;
+    }
+    buf.get_mut(..new_len)?.copy_from_slice(new.get(..new_len)?);
     *buf.get_mut(end)? = b'}';
     Some(end + 1)
 }

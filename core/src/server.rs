@@ -17,7 +17,7 @@ use crate::command::{Args, Command};
 use crate::error::{ArgError, Failure, ParseError, Refusal, Ret, cut_at_char_boundary, messages};
 use crate::gate;
 use crate::parse::{self, Split};
-use crate::response::{self, Fields, HEAD_RESERVE};
+use crate::response::{self, Fields};
 use crate::session::{Auth, LoginOutcome, Session, SessionId};
 use crate::table::{CommandId, TABLE, lookup};
 
@@ -249,7 +249,7 @@ impl<B: Backend, C: Clock> Server<B, C> {
         session.set_pending(None);
         let now = self.clock.unix_ms();
         let ctx = self.context(session, now);
-        let mut fields = Fields::after_head(out, HEAD_RESERVE);
+        let mut fields = Fields::after_head(out, u8::from(id), now);
         let result = self.backend.finish(ticket, &ctx, &mut fields);
         let answer = Answer::settled(id, result, &fields);
         write(session, answer, now, None, out)
@@ -294,7 +294,7 @@ impl<B: Backend, C: Clock> Server<B, C> {
             Ok(c) => c,
             Err(e) => return Answer::invalid(e),
         };
-        let mut fields = Fields::after_head(out, HEAD_RESERVE);
+        let mut fields = Fields::after_head(out, cmd, now);
         let result = self.run(session, &command, now, &mut fields, close);
         Answer::settled(spec.id, result, &fields)
     }
