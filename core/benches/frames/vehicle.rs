@@ -44,7 +44,7 @@ impl Backend for Vehicle {
             }
             Args::Mission { ext_id, payload } => {
                 let n = match payload {
-                    Payload::Json(j) => j.matches("\"x\"").count(),
+                    Payload::Json(j) => waypoints(j),
                     Payload::Path(_) => 0,
                 };
                 out.u64("waypoints", n as u64).u64("ext_id", u64::from(*ext_id));
@@ -53,4 +53,32 @@ impl Backend for Vehicle {
         }
         Ok(Step::Done)
     }
+}
+
+/// The waypoints of a benchmark mission: one `"x"` key each. The x bytes
+/// are found eight at a time (`str::matches` builds a two-way searcher per
+/// call and costs several instructions per byte, all of which would be
+/// counted as the core's).
+fn waypoints(json: &str) -> usize {
+    const ONES: u64 = 0x0101_0101_0101_0101;
+    let bytes = json.as_bytes();
+    let key_at = |i: usize| {
+        i > 0 && bytes.get(i - 1) == Some(&b'"') && bytes.get(i) == Some(&b'x') && bytes.get(i + 1) == Some(&b'"')
+    };
+    let mut n = 0;
+    let mut chunks = bytes.chunks_exact(8);
+    for (c, chunk) in (&mut chunks).enumerate() {
+        let mut word = [0; 8];
+        word.copy_from_slice(chunk);
+        let x = u64::from_le_bytes(word) ^ (ONES * u64::from(b'x'));
+        // A high bit for each zero byte (and possibly some above one: the
+        // candidates are checked byte by byte).
+        let mut candidates = x.wrapping_sub(ONES) & !x & (ONES << 7);
+        while candidates != 0 {
+            n += usize::from(key_at(c * 8 + (candidates.trailing_zeros() / 8) as usize));
+            candidates &= candidates - 1;
+        }
+    }
+    let tail = bytes.len() - chunks.remainder().len();
+    n + (tail..bytes.len()).filter(|&i| key_at(i)).count()
 }
