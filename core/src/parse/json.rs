@@ -1,20 +1,16 @@
 //! A JSON well-formedness check (RFC 8259) that allocates nothing and uses
 //! no recursion: nesting is tracked in a fixed bit stack, so a hostile
 //! payload can neither exhaust memory nor overflow the call stack.
+//!
+//! One pass over the bytes with a cursor; the end of the text reads as a
+//! NUL byte, which is invalid everywhere in JSON (outside strings it starts
+//! no token, inside them it is a control character), so running off the end
+//! needs no check of its own.
 
 use crate::error::ArgError;
 
 /// Deepest nesting of objects and arrays a payload may use.
 pub const MAX_JSON_DEPTH: usize = 64;
-
-/// Where the scanner is in the grammar.
-#[derive(Clone, Copy)]
-enum Expect {
-    /// A value.
-    Value,
-    /// What may follow a complete value: `,`, a closing bracket, or the end.
-    AfterValue,
-}
 
 /// Open containers, innermost in bit 0: 1 = object, 0 = array.
 struct Stack {
@@ -23,26 +19,26 @@ struct Stack {
 }
 
 impl Stack {
-    fn push(&mut self, object: bool) -> Result<(), ArgError> {
+    fn push(&mut self, object: bool) -> Option<()> {
         if self.depth == MAX_JSON_DEPTH {
-            return Err(ArgError::BadJson);
+            return None;
         }
         self.bits = (self.bits << 1) | u64::from(object);
         self.depth += 1;
-        Ok(())
+        Some(())
     }
 
-    fn pop(&mut self, object: bool) -> Result<(), ArgError> {
-        if self.depth == 0 || self.in_object() != object {
-            return Err(ArgError::BadJson);
-        }
+    fn pop(&mut self) {
         self.bits >>= 1;
         self.depth -= 1;
-        Ok(())
     }
 
     fn in_object(&self) -> bool {
         self.depth > 0 && self.bits & 1 == 1
+    }
+
+    fn in_array(&self) -> bool {
+        self.depth > 0 && self.bits & 1 == 0
     }
 }
 
@@ -52,173 +48,167 @@ struct Scanner<'a> {
 }
 
 impl Scanner<'_> {
-    fn peek(&self) -> Option<u8> {
-        self.bytes.get(self.pos).copied()
+    /// The byte at the cursor; 0 at the end.
+    #[inline]
+    fn peek(&self) -> u8 {
+        self.bytes.get(self.pos).copied().unwrap_or(0)
     }
 
-    fn bump(&mut self) -> Option<u8> {
-        let b = self.peek()?;
-        self.pos += 1;
-        Some(b)
-    }
-
-    fn eat(&mut self, want: u8) -> Result<(), ArgError> {
-        if self.bump() == Some(want) {
-            Ok(())
-        } else {
-            Err(ArgError::BadJson)
-        }
-    }
-
+    #[inline]
     fn skip_ws(&mut self) {
-        while matches!(self.peek(), Some(b' ' | b'\t' | b'\n' | b'\r')) {
+        while matches!(self.peek(), b' ' | b'\t' | b'\n' | b'\r') {
             self.pos += 1;
         }
     }
 
-    fn literal(&mut self, word: &[u8]) -> Result<(), ArgError> {
-        word.iter().try_for_each(|&b| self.eat(b))
+    fn literal(&mut self, word: &[u8]) -> Option<()> {
+        let end = self.pos + word.len();
+        (self.bytes.get(self.pos..end)? == word).then(|| self.pos = end)
     }
 
-    fn digits(&mut self) -> usize {
+    /// Digits at the cursor; whether there was at least one.
+    #[inline]
+    fn digits(&mut self) -> bool {
         let start = self.pos;
-        while matches!(self.peek(), Some(b'0'..=b'9')) {
+        while self.peek().is_ascii_digit() {
             self.pos += 1;
         }
-        self.pos - start
+        self.pos > start
     }
 
-    fn number(&mut self) -> Result<(), ArgError> {
-        if self.peek() == Some(b'-') {
+    fn number(&mut self) -> Option<()> {
+        if self.peek() == b'-' {
             self.pos += 1;
         }
         match self.peek() {
-            Some(b'0') => self.pos += 1,
-            Some(b'1'..=b'9') => {
+            b'0' => self.pos += 1,
+            b'1'..=b'9' => {
                 self.digits();
             }
-            _ => return Err(ArgError::BadJson),
+            _ => return None,
         }
-        if self.peek() == Some(b'.') {
+        if self.peek() == b'.' {
             self.pos += 1;
-            if self.digits() == 0 {
-                return Err(ArgError::BadJson);
-            }
+            self.digits().then_some(())?;
         }
-        if matches!(self.peek(), Some(b'e' | b'E')) {
+        if matches!(self.peek(), b'e' | b'E') {
             self.pos += 1;
-            if matches!(self.peek(), Some(b'+' | b'-')) {
+            if matches!(self.peek(), b'+' | b'-') {
                 self.pos += 1;
             }
-            if self.digits() == 0 {
-                return Err(ArgError::BadJson);
-            }
+            self.digits().then_some(())?;
         }
-        Ok(())
+        Some(())
     }
 
-    /// A string, opening quote included. The input is `&str`, so the bytes
-    /// are valid UTF-8 already; only escapes and control bytes need checks.
-    fn string(&mut self) -> Result<(), ArgError> {
-        self.eat(b'"')?;
+    /// A string at the cursor, quotes included. The input is `&str`, so
+    /// the bytes are valid UTF-8 already; only escapes and control bytes
+    /// need checks. (Byte by byte: keys are short, a word at a time would
+    /// cost more than it saves.)
+    #[inline]
+    fn string(&mut self) -> Option<()> {
+        if self.peek() != b'"' {
+            return None;
+        }
+        self.pos += 1;
         loop {
-            match self.bump().ok_or(ArgError::BadJson)? {
-                b'"' => return Ok(()),
-                b'\\' => match self.bump().ok_or(ArgError::BadJson)? {
-                    b'"' | b'\\' | b'/' | b'b' | b'f' | b'n' | b'r' | b't' => {}
-                    b'u' => {
-                        for _ in 0..4 {
-                            if !self.bump().ok_or(ArgError::BadJson)?.is_ascii_hexdigit() {
-                                return Err(ArgError::BadJson);
-                            }
-                        }
-                    }
-                    _ => return Err(ArgError::BadJson),
-                },
-                0x00..=0x1f => return Err(ArgError::BadJson),
+            let b = self.peek();
+            self.pos += 1;
+            match b {
+                b'"' => return Some(()),
+                b'\\' => self.escape()?,
+                0x00..=0x1f => return None,
                 _ => {}
             }
         }
     }
 
+    /// The rest of an escape, after its backslash.
+    fn escape(&mut self) -> Option<()> {
+        let escape = self.peek();
+        self.pos += 1;
+        match escape {
+            b'"' | b'\\' | b'/' | b'b' | b'f' | b'n' | b'r' | b't' => Some(()),
+            b'u' => {
+                let hex = self.bytes.get(self.pos..self.pos + 4)?;
+                hex.iter().all(u8::is_ascii_hexdigit).then_some(())?;
+                self.pos += 4;
+                Some(())
+            }
+            _ => None,
+        }
+    }
+
     /// An object key and its colon; the value follows.
-    fn key(&mut self) -> Result<(), ArgError> {
+    fn key(&mut self) -> Option<()> {
         self.string()?;
         self.skip_ws();
-        self.eat(b':')
+        (self.peek() == b':').then(|| self.pos += 1)
+    }
+
+    /// One value with its nested values, then nothing but whitespace.
+    fn document(&mut self) -> Option<()> {
+        let mut stack = Stack { bits: 0, depth: 0 };
+        let mut need_value = true;
+        loop {
+            if need_value {
+                self.skip_ws();
+                match self.peek() {
+                    open @ (b'{' | b'[') => {
+                        self.pos += 1;
+                        let object = open == b'{';
+                        stack.push(object)?;
+                        self.skip_ws();
+                        if self.peek() == open + 2 {
+                            // `{}` or `[]`: the closer is two code points on.
+                            self.pos += 1;
+                            stack.pop();
+                        } else {
+                            if object {
+                                self.key()?;
+                            }
+                            continue;
+                        }
+                    }
+                    b'"' => self.string()?,
+                    b't' => self.literal(b"true")?,
+                    b'f' => self.literal(b"false")?,
+                    b'n' => self.literal(b"null")?,
+                    _ => self.number()?,
+                }
+                need_value = false;
+            }
+            // After a value.
+            self.skip_ws();
+            match self.peek() {
+                b',' if stack.depth > 0 => {
+                    self.pos += 1;
+                    if stack.in_object() {
+                        self.skip_ws();
+                        self.key()?;
+                    }
+                    need_value = true;
+                }
+                b'}' if stack.in_object() => {
+                    self.pos += 1;
+                    stack.pop();
+                }
+                b']' if stack.in_array() => {
+                    self.pos += 1;
+                    stack.pop();
+                }
+                _ => return (stack.depth == 0 && self.pos == self.bytes.len()).then_some(()),
+            }
+        }
     }
 }
 
 /// Checks that `s` is exactly one well-formed JSON value, surrounded by
 /// optional whitespace.
 pub fn validate(s: &str) -> Result<(), ArgError> {
-    let mut sc = Scanner {
+    let mut scanner = Scanner {
         bytes: s.as_bytes(),
         pos: 0,
     };
-    let mut stack = Stack { bits: 0, depth: 0 };
-    let mut expect = Expect::Value;
-    loop {
-        sc.skip_ws();
-        expect = match expect {
-            Expect::Value => match sc.peek().ok_or(ArgError::BadJson)? {
-                open @ (b'{' | b'[') => {
-                    sc.pos += 1;
-                    stack.push(open == b'{')?;
-                    sc.skip_ws();
-                    match (open, sc.peek()) {
-                        (b'{', Some(b'}')) | (b'[', Some(b']')) => {
-                            sc.pos += 1;
-                            stack.pop(open == b'{')?;
-                            Expect::AfterValue
-                        }
-                        (b'{', _) => {
-                            sc.key()?;
-                            Expect::Value
-                        }
-                        _ => Expect::Value,
-                    }
-                }
-                b'"' => {
-                    sc.string()?;
-                    Expect::AfterValue
-                }
-                b't' => {
-                    sc.literal(b"true")?;
-                    Expect::AfterValue
-                }
-                b'f' => {
-                    sc.literal(b"false")?;
-                    Expect::AfterValue
-                }
-                b'n' => {
-                    sc.literal(b"null")?;
-                    Expect::AfterValue
-                }
-                _ => {
-                    sc.number()?;
-                    Expect::AfterValue
-                }
-            },
-            Expect::AfterValue => match sc.bump() {
-                None if stack.depth == 0 => return Ok(()),
-                Some(b',') if stack.depth > 0 => {
-                    if stack.in_object() {
-                        sc.skip_ws();
-                        sc.key()?;
-                    }
-                    Expect::Value
-                }
-                Some(b'}') => {
-                    stack.pop(true)?;
-                    Expect::AfterValue
-                }
-                Some(b']') => {
-                    stack.pop(false)?;
-                    Expect::AfterValue
-                }
-                _ => return Err(ArgError::BadJson),
-            },
-        };
-    }
+    scanner.document().ok_or(ArgError::BadJson)
 }
