@@ -23,9 +23,46 @@ use super::{exact, mul_high, pow10};
 /// `f32::MAX` (after rounding) is an infinity, which the request grammar
 /// then refuses. Any number of digits and any exponent are read exactly.
 pub fn parse_f32(text: &str) -> Option<f32> {
+    if let Some(v) = short(text.as_bytes()) {
+        return Some(v);
+    }
     let decimal = Decimal::scan(text.as_bytes())?;
     let magnitude = decimal.magnitude();
     Some(if decimal.negative { -magnitude } else { magnitude })
+}
+
+/// What clients send most, `[+-]? digits ('.' digits?)?` or `'.' digits`
+/// with at most seven digits and no exponent, in one tight pass: the
+/// digits and 10^(fraction digits) are exact f32s, so one division rounds
+/// correctly (path 1 without the general scan). `None` for anything else,
+/// which the general path then reads (or refuses).
+#[inline]
+fn short(text: &[u8]) -> Option<f32> {
+    let (negative, body) = match text.split_first() {
+        Some((b'-', rest)) => (true, rest),
+        Some((b'+', rest)) => (false, rest),
+        _ => (false, text),
+    };
+    let mut w: u32 = 0;
+    let mut digits = 0usize;
+    let mut point = None;
+    for &b in body {
+        let digit = b.wrapping_sub(b'0');
+        if digit <= 9 {
+            w = w.wrapping_mul(10).wrapping_add(u32::from(digit));
+            digits += 1;
+        } else if b == b'.' && point.is_none() {
+            point = Some(digits);
+        } else {
+            return None;
+        }
+    }
+    if digits == 0 || digits > 7 {
+        return None;
+    }
+    let scale = *POW10.get(digits - point.unwrap_or(digits))?;
+    let v = w as f32 / scale;
+    Some(if negative { -v } else { v })
 }
 
 /// A decimal number as read from the text.
