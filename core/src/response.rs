@@ -194,14 +194,28 @@ impl Sink<'_> {
         self.bytes(text.get(..n).unwrap_or_default());
     }
 
-    /// `{"ret":..,"cmd":..,"ts":..`.
+    /// `{"ret":..,"cmd":..,"ts":..`: in one piece when there is room for
+    /// the longest (always, but in a buffer too small for any response).
     fn head(&mut self, ret: Ret, cmd: u8, ts: i64) {
-        self.bytes(br#"{"ret":"#);
-        self.int(i64::from(ret.code()));
-        self.bytes(br#","cmd":"#);
-        self.int(i64::from(cmd));
-        self.bytes(br#","ts":"#);
-        self.int(ts);
+        let room = self.buf.get_mut(self.len..).and_then(|rest| rest.first_chunk_mut::<HEAD_ROOM>());
+        let Some(dst) = room.filter(|_| !self.overflow) else {
+            self.bytes(br#"{"ret":"#);
+            self.int(i64::from(ret.code()));
+            self.bytes(br#","cmd":"#);
+            self.int(i64::from(cmd));
+            self.bytes(br#","ts":"#);
+            self.int(ts);
+            return;
+        };
+        let mut at = put_all(dst, br#"{"ret":"#);
+        at = small_int(dst, at, i32::from(ret.code()));
+        at += put_all(dst.get_mut(at..).unwrap_or_default(), br#","cmd":"#);
+        at = small_int(dst, at, i32::from(cmd));
+        at += put_all(dst.get_mut(at..).unwrap_or_default(), br#","ts":"#);
+        if let Some(digits) = dst.get_mut(at..).and_then(|rest| rest.first_chunk_mut::<{ number::INT_ROOM }>()) {
+            at += number::write_i64(ts, digits);
+        }
+        self.len += at;
     }
 
     fn int(&mut self, v: i64) {
@@ -610,6 +624,25 @@ fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
     };
     s.head(ret, cmd, ts);
     (!s.overflow).then_some(s.len)
+}
+
+/// Room for the longest head and the spare bytes of its digit stores.
+const HEAD_ROOM: usize = HEAD_RESERVE + 8;
+
+/// Writes `v` (-999..=999) at `at`; returns where it ends.
+#[inline]
+fn small_int(dst: &mut [u8], at: usize, v: i32) -> usize {
+    put(dst, at, b'-');
+    let at = at + usize::from(v < 0);
+    let v = v.unsigned_abs();
+    let hundreds = v / 100;
+    put(dst, at, b'0' + (hundreds % 10) as u8);
+    let at = at + usize::from(hundreds > 0);
+    let [tens, units] = number::pair(v % 100);
+    put(dst, at, tens);
+    let at = at + usize::from(v >= 10);
+    put(dst, at, units);
+    at + 1
 }
 
 /// How much longer the head gets when `ret` 0 is rewritten as a failure's
