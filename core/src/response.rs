@@ -346,22 +346,21 @@ fn copy_plain(dst: &mut [u8], src: &[u8]) -> bool {
 }
 
 /// [`copy_plain`] for eight bytes and more (out of line: the short case is
-/// the hot one, and small).
+/// the hot one, and small): a plain copy, then the escape check a word at
+/// a time (the last word overlapping those before).
 #[inline(never)]
 fn copy_plain_long(dst: &mut [u8], src: &[u8]) -> bool {
-    let mut escapes = false;
-    for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
-        if let (Some(d), Some(s)) = (d.first_chunk_mut::<8>(), s.first_chunk::<8>()) {
-            escapes |= word_escapes(u64::from_le_bytes(*s));
-            *d = *s;
-        }
+    dst.copy_from_slice(src);
+    let mut flags = 0;
+    let mut rest = src;
+    while let Some((word, tail)) = rest.split_first_chunk::<8>() {
+        flags |= escape_flags(u64::from_le_bytes(*word));
+        rest = tail;
     }
-    // The last eight, overlapping those before.
-    if let (Some(d), Some(s)) = (dst.last_chunk_mut::<8>(), src.last_chunk::<8>()) {
-        escapes |= word_escapes(u64::from_le_bytes(*s));
-        *d = *s;
+    if let Some(last) = src.last_chunk::<8>() {
+        flags |= escape_flags(u64::from_le_bytes(*last));
     }
-    !escapes
+    flags == 0
 }
 
 /// Writes `"key":` at `at` into `dst` (which has the room); where it ends,
@@ -389,13 +388,18 @@ fn put(dst: &mut [u8], at: usize, b: u8) {
 /// Whether any of the eight bytes of `x` [`needs_escape`].
 #[inline]
 fn word_escapes(x: u64) -> bool {
+    escape_flags(x) != 0
+}
+
+/// A high bit set in the bytes of `x` that [`needs_escape`] (exactly in
+/// the lowest such byte; a borrow can also mark some above it).
+#[inline]
+fn escape_flags(x: u64) -> u64 {
     const ONES: u64 = 0x0101_0101_0101_0101;
     const HIGH: u64 = 0x8080_8080_8080_8080;
-    // A byte's high bit is set where that byte of `x` is zero (exact as to
-    // whether any is).
     let zero = |x: u64| x.wrapping_sub(ONES) & !x & HIGH;
     let control = x.wrapping_sub(ONES * 0x20) & !x & HIGH;
-    control | zero(x ^ (ONES * u64::from(b'"'))) | zero(x ^ (ONES * u64::from(b'\\'))) != 0
+    control | zero(x ^ (ONES * u64::from(b'"'))) | zero(x ^ (ONES * u64::from(b'\\')))
 }
 
 /// The index of the first byte that [`needs_escape`], testing eight bytes

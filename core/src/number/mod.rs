@@ -73,6 +73,7 @@ pub(crate) fn write_i64(v: i64, out: &mut [u8; INT_ROOM]) -> usize {
 }
 
 /// Writes the digits of `v` at `at`; returns where they end.
+#[inline]
 fn digits_at(v: u64, out: &mut [u8; INT_ROOM], at: usize) -> usize {
     if v < 100 {
         // Codes and small counts: one or two digits (the second written
