@@ -149,20 +149,19 @@ impl Big {
     fn shl(&mut self, n: u32) {
         let limbs = (n / 32) as usize;
         let bits = n % 32;
-        if limbs >= LIMBS {
-            self.0 = [0; LIMBS];
-            return;
-        }
-        self.0.rotate_right(limbs);
-        for limb in self.0.iter_mut().take(limbs) {
-            *limb = 0;
-        }
-        if bits > 0 {
-            let mut carry = 0;
-            for limb in &mut self.0 {
-                let v = *limb;
-                *limb = v << bits | carry;
-                carry = v >> (32 - bits);
+        // From the top down, so that every limb is read before it is
+        // overwritten.
+        for i in (0..LIMBS).rev() {
+            let limb = |j: Option<usize>| j.and_then(|j| self.0.get(j)).copied().unwrap_or(0);
+            let high = limb(i.checked_sub(limbs));
+            let low = limb(i.checked_sub(limbs + 1));
+            let v = if bits == 0 {
+                high
+            } else {
+                high << bits | low >> (32 - bits)
+            };
+            if let Some(slot) = self.0.get_mut(i) {
+                *slot = v;
             }
         }
     }
