@@ -67,12 +67,7 @@ impl Sink<'_> {
     fn string(&mut self, parts: &[&str]) {
         self.byte(b'"');
         for part in parts {
-            let start = self.len;
-            let plain = self.room(part.len()).is_some_and(|dst| copy_plain(dst, part.as_bytes()));
-            if !plain {
-                self.len = start;
-                self.escaped(part);
-            }
+            self.escaped(part);
         }
         self.byte(b'"');
     }
@@ -107,28 +102,32 @@ impl Sink<'_> {
     }
 
     fn escaped(&mut self, s: &str) {
-        let bytes = s.as_bytes();
-        let mut start = 0;
+        let mut rest = s.as_bytes();
         // Escapes are rare: copy the runs between them in one go.
-        while let Some(offset) = bytes.get(start..).and_then(first_escape) {
-            let at = start + offset;
-            self.bytes(bytes.get(start..at).unwrap_or_default());
-            let b = bytes.get(at).copied().unwrap_or_default();
-            match b {
-                b'"' => self.bytes(b"\\\""),
-                b'\\' => self.bytes(b"\\\\"),
-                b'\n' => self.bytes(b"\\n"),
-                b'\r' => self.bytes(b"\\r"),
-                b'\t' => self.bytes(b"\\t"),
-                _ => {
-                    const HEX: &[u8; 16] = b"0123456789abcdef";
-                    let hex = |nibble: u8| HEX.get(usize::from(nibble & 0xf)).copied().unwrap_or(b'0');
-                    self.bytes(&[b'\\', b'u', b'0', b'0', hex(b >> 4), hex(b)]);
-                }
+        loop {
+            let run = first_escape(rest).unwrap_or(rest.len());
+            let (plain, escape) = rest.split_at_checked(run).unwrap_or_default();
+            self.bytes(plain);
+            let Some((&b, tail)) = escape.split_first() else {
+                return;
+            };
+            let short = match b {
+                b'"' => b'"',
+                b'\\' => b'\\',
+                b'\n' => b'n',
+                b'\r' => b'r',
+                b'\t' => b't',
+                _ => 0,
+            };
+            if short != 0 {
+                self.bytes(&[b'\\', short]);
+            } else {
+                const HEX: &[u8; 16] = b"0123456789abcdef";
+                let hex = |nibble: u8| HEX.get(usize::from(nibble & 0xf)).copied().unwrap_or(b'0');
+                self.bytes(&[b'\\', b'u', b'0', b'0', hex(b >> 4), hex(b)]);
             }
-            start = at + 1;
+            rest = tail;
         }
-        self.bytes(bytes.get(start..).unwrap_or_default());
     }
 
     /// A scalar member or element: `,` if `comma`, `"key":` if there is a
@@ -145,7 +144,7 @@ impl Sink<'_> {
         let room = self.lead_and_room(comma, key, MAX);
         match room.and_then(|at| Some((at, self.buf.get_mut(at..)?.first_chunk_mut::<MAX>()?))) {
             Some((at, dst)) => self.len = at + value(dst),
-            None => self.scalar_in_pieces(comma, key, value),
+            None => self.scalar_slowly(comma, key, value),
         }
     }
 
@@ -173,15 +172,22 @@ impl Sink<'_> {
     }
 
     /// [`Sink::scalar`] near the end of the buffer, or with a key that
-    /// needs escapes.
+    /// needs escapes: the value into a scratch buffer, then piece by piece.
     #[cold]
     #[inline(never)]
-    fn scalar_in_pieces<const MAX: usize>(
+    fn scalar_slowly<const MAX: usize>(
         &mut self,
         comma: bool,
         key: Option<&str>,
         value: impl FnOnce(&mut [u8; MAX]) -> usize,
     ) {
+        let mut text = [0; MAX];
+        let n = value(&mut text);
+        self.scalar_in_pieces(comma, key, text.get(..n).unwrap_or_default());
+    }
+
+    #[inline(never)]
+    fn scalar_in_pieces(&mut self, comma: bool, key: Option<&str>, value: &[u8]) {
         if comma {
             self.byte(b',');
         }
@@ -189,9 +195,7 @@ impl Sink<'_> {
             self.string(&[key]);
             self.byte(b':');
         }
-        let mut text = [0; MAX];
-        let n = value(&mut text);
-        self.bytes(text.get(..n).unwrap_or_default());
+        self.bytes(value);
     }
 
     /// `{"ret":..,"cmd":..,"ts":..`: in one piece when there is room for
@@ -402,22 +406,27 @@ fn escape_flags(x: u64) -> u64 {
     control | zero(x ^ (ONES * u64::from(b'"'))) | zero(x ^ (ONES * u64::from(b'\\')))
 }
 
-/// The index of the first byte that [`needs_escape`], testing eight bytes
-/// per step: strings are mostly long runs that need none.
+/// The index of the first byte that [`needs_escape`], eight bytes per step
+/// (strings are mostly long runs that need none).
 fn first_escape(bytes: &[u8]) -> Option<usize> {
-    let mut chunks = bytes.chunks_exact(8);
     let mut offset = 0;
-    for chunk in &mut chunks {
-        if chunk.first_chunk::<8>().is_some_and(|w| word_escapes(u64::from_le_bytes(*w))) {
-            return chunk.iter().position(|&b| needs_escape(b)).map(|i| offset + i);
+    let mut rest = bytes;
+    while let Some((word, tail)) = rest.split_first_chunk::<8>() {
+        let flags = escape_flags(u64::from_le_bytes(*word));
+        if flags != 0 {
+            // The lowest flag is exact.
+            return Some(offset + (flags.trailing_zeros() / 8) as usize);
         }
         offset += 8;
+        rest = tail;
     }
-    chunks
-        .remainder()
-        .iter()
-        .position(|&b| needs_escape(b))
-        .map(|i| offset + i)
+    // The last eight bytes, overlapping those checked, spare the byte by
+    // byte search when they are clean.
+    let clean_tail = bytes.last_chunk::<8>().is_some_and(|w| escape_flags(u64::from_le_bytes(*w)) == 0);
+    if rest.is_empty() || clean_tail {
+        return None;
+    }
+    rest.iter().position(|&b| needs_escape(b)).map(|i| offset + i)
 }
 
 /// Writes the members of a JSON object: the command-specific fields of a

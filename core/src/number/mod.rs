@@ -103,15 +103,14 @@ fn digits_at(v: u64, out: &mut [u8; INT_ROOM], at: usize) -> usize {
     // The n digits of the top are the last n of its eight.
     let top = top as u32;
     let n = digit_count(top);
-    let text = u64::from_le_bytes(eight_digits(top)) >> (8 * (8 - n));
-    put8(out, at, text.to_le_bytes());
-    if groups >= 1 {
-        put8(out, at + n, eight_digits(first));
+    let mut end = at;
+    for (i, group) in [top, first, second].into_iter().take(1 + groups).enumerate() {
+        let text = u64::from_le_bytes(eight_digits(group));
+        let (text, width) = if i == 0 { (text >> (8 * (8 - n)), n) } else { (text, 8) };
+        put8(out, end, text.to_le_bytes());
+        end += width;
     }
-    if groups == 2 {
-        put8(out, at + n + 8, eight_digits(second));
-    }
-    at + n + 8 * groups
+    end
 }
 
 fn put(out: &mut [u8], at: usize, b: u8) {
