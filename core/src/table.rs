@@ -126,8 +126,14 @@ pub struct Spec {
     pub flags: Flags,
     /// The usage line, e.g. `set_sp_ned x:y:z:yaw`.
     pub usage: &'static str,
-    /// One line saying what the command does.
-    pub summary: &'static str,
+}
+
+impl Spec {
+    /// One line saying what the command does (kept out of the table so
+    /// that a firmware that never prints it links none of the text).
+    pub fn summary(&self) -> &'static str {
+        self.id.summary()
+    }
 }
 
 // `NO_ARM` = runOnArm=false, `NO_LOCK` = runInLock=false, `ADMIN` = admin only.
@@ -158,11 +164,17 @@ macro_rules! command_table {
                 grammar: Grammar::$grammar,
                 flags: flags!($($flag)*),
                 usage: $usage,
-                summary: $summary,
             }, )* )*
         ];
 
         impl CommandId {
+            /// One line saying what the command does.
+            pub fn summary(self) -> &'static str {
+                match self {
+                    $( $( CommandId::$variant => $summary, )* )*
+                }
+            }
+
             /// The table row of this command.
             pub fn spec(self) -> &'static Spec {
                 // Constant indices: the const check below proves each row

@@ -92,7 +92,7 @@ fn table_holds_login_and_the_98_commands_of_the_reference_in_id_order() {
             "usage names the command: {}",
             spec.usage
         );
-        assert!(!spec.summary.is_empty());
+        assert!(!spec.summary().is_empty());
     }
     assert_eq!(CommandId::from_u8(0), None, "0 means unknown");
     assert_eq!(CommandId::from_u8(100), None);

@@ -235,14 +235,14 @@ fn history_file() -> Option<PathBuf> {
 fn print_table() {
     let width = TABLE.iter().map(|s| s.usage.len()).max().unwrap_or(0);
     for spec in &TABLE {
-        println!("  {:width$}  {}", spec.usage, spec.summary);
+        println!("  {:width$}  {}", spec.usage, spec.summary());
     }
 }
 
 fn print_command(name: &str) {
     match lluav_core::table::lookup(name) {
         Some(spec) => {
-            println!("{}\n  {}", spec.usage, spec.summary);
+            println!("{}\n  {}", spec.usage, spec.summary());
             let mut notes = Vec::new();
             if !spec.flags.run_on_arm {
                 notes.push("refused while armed");
