@@ -191,10 +191,10 @@ const POW10: [f32; 11] = [1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10
 /// Path 1: `w · 10^e` when both operands are exact f32s, so that one
 /// correctly rounded operation gives the correctly rounded result.
 fn exact_operands(w: u64, e: i64) -> Option<f32> {
-    if w > 1 << 24 {
-        return None;
-    }
+    let w = u32::try_from(w).ok().filter(|&w| w <= 1 << 24)?;
     let p = *POW10.get(usize::try_from(e.unsigned_abs()).ok()?)?;
+    // From u32: a 32-bit core converts that in one instruction, a u64 in a
+    // library call.
     let w = w as f32;
     Some(if e < 0 { w / p } else { w * p })
 }

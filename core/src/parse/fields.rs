@@ -95,16 +95,21 @@ pub(crate) fn list<T, const N: usize>(
 /// Exactly `N` numbers separated by `sep`.
 pub(crate) fn numbers<const N: usize>(input: &str, sep: u8) -> Result<[f32; N], ArgError> {
     let mut values = [0.0; N];
-    let mut count = 0;
+    fill(input, sep, &mut values)?;
+    Ok(values)
+}
+
+/// Exactly `values.len()` numbers separated by `sep`, into `values` (one
+/// copy of the code for every count).
+fn fill(input: &str, sep: u8, values: &mut [f32]) -> Result<(), ArgError> {
+    let mut slots = values.iter_mut();
     for token in split(input, sep) {
         let v = float(token)?;
-        *values.get_mut(count).ok_or(ArgError::Malformed)? = v;
-        count += 1;
+        *slots.next().ok_or(ArgError::Malformed)? = v;
     }
-    if count == N {
-        Ok(values)
-    } else {
-        Err(ArgError::Malformed)
+    match slots.next() {
+        None => Ok(()),
+        Some(_) => Err(ArgError::Malformed),
     }
 }
 

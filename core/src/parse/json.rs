@@ -105,7 +105,6 @@ impl Scanner<'_> {
     /// the bytes are valid UTF-8 already; only escapes and control bytes
     /// need checks. (Byte by byte: keys are short, a word at a time would
     /// cost more than it saves.)
-    #[inline]
     fn string(&mut self) -> Option<()> {
         if self.peek() != b'"' {
             return None;
