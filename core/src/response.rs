@@ -95,9 +95,13 @@ impl Sink<'_> {
             }
         } else {
             self.len = start;
-            lead.map(|b| self.byte(b));
+            if let Some(b) = lead {
+                self.byte(b);
+            }
             self.string(&[s]);
-            trail.map(|b| self.byte(b));
+            if let Some(b) = trail {
+                self.byte(b);
+            }
         }
     }
 
@@ -201,7 +205,10 @@ impl Sink<'_> {
     /// `{"ret":..,"cmd":..,"ts":..`: in one piece when there is room for
     /// the longest (always, but in a buffer too small for any response).
     fn head(&mut self, ret: Ret, cmd: u8, ts: i64) {
-        let room = self.buf.get_mut(self.len..).and_then(|rest| rest.first_chunk_mut::<HEAD_ROOM>());
+        let room = self
+            .buf
+            .get_mut(self.len..)
+            .and_then(|rest| rest.first_chunk_mut::<HEAD_ROOM>());
         let Some(dst) = room.filter(|_| !self.overflow) else {
             self.bytes(br#"{"ret":"#);
             self.int(i64::from(ret.code()));
@@ -216,7 +223,10 @@ impl Sink<'_> {
         at += put_all(dst.get_mut(at..).unwrap_or_default(), br#","cmd":"#);
         at = small_int(dst, at, i32::from(cmd));
         at += put_all(dst.get_mut(at..).unwrap_or_default(), br#","ts":"#);
-        if let Some(digits) = dst.get_mut(at..).and_then(|rest| rest.first_chunk_mut::<{ number::INT_ROOM }>()) {
+        if let Some(digits) = dst
+            .get_mut(at..)
+            .and_then(|rest| rest.first_chunk_mut::<{ number::INT_ROOM }>())
+        {
             at += number::write_i64(ts, digits);
         }
         self.len += at;
@@ -422,7 +432,9 @@ fn first_escape(bytes: &[u8]) -> Option<usize> {
     }
     // The last eight bytes, overlapping those checked, spare the byte by
     // byte search when they are clean.
-    let clean_tail = bytes.last_chunk::<8>().is_some_and(|w| escape_flags(u64::from_le_bytes(*w)) == 0);
+    let clean_tail = bytes
+        .last_chunk::<8>()
+        .is_some_and(|w| escape_flags(u64::from_le_bytes(*w)) == 0);
     if rest.is_empty() || clean_tail {
         return None;
     }

@@ -387,7 +387,10 @@ const fn name_index() -> [u8; SLOTS] {
         let mut slot = slot_of(name);
         while at(&index, slot) != 0 {
             // Duplicate names would make lookup ambiguous.
-            assert!(!same(name_of(at(&index, slot)), name), "command names must be unique");
+            assert!(
+                !same(name_of(at(&index, slot)), name),
+                "command names must be unique"
+            );
             slot = (slot + 1) % SLOTS;
         }
         if let Some((_, [free, ..])) = index.split_at_mut_checked(slot) {

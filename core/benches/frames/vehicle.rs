@@ -63,7 +63,10 @@ fn waypoints(json: &str) -> usize {
     const ONES: u64 = 0x0101_0101_0101_0101;
     let bytes = json.as_bytes();
     let key_at = |i: usize| {
-        i > 0 && bytes.get(i - 1) == Some(&b'"') && bytes.get(i) == Some(&b'x') && bytes.get(i + 1) == Some(&b'"')
+        i > 0
+            && bytes.get(i - 1) == Some(&b'"')
+            && bytes.get(i) == Some(&b'x')
+            && bytes.get(i + 1) == Some(&b'"')
     };
     let mut n = 0;
     let mut chunks = bytes.chunks_exact(8);

@@ -109,15 +109,22 @@ fn short_exact(bits: u32) -> Option<(u32, i32)> {
 }
 
 /// 5^0 to 5^13, the powers of five below 2^32.
-const POW5: [u32; 14] = {
-    let mut t = [1u32; 14];
-    let mut i = 1;
-    while i < 14 {
-        t[i] = t[i - 1] * 5;
-        i += 1;
-    }
-    t
-};
+const POW5: [u32; 14] = [
+    1,
+    5,
+    25,
+    125,
+    625,
+    3_125,
+    15_625,
+    78_125,
+    390_625,
+    1_953_125,
+    9_765_625,
+    48_828_125,
+    244_140_625,
+    1_220_703_125,
+];
 
 /// The shortest decimal `digits · 10^exp` in the rounding interval of the
 /// positive finite float whose bits are `bits`, nearest to it among those
@@ -303,7 +310,7 @@ fn layout(out: &mut [u8], digits: u32, exp: i32) -> usize {
         len += put(out, len, if e < 0 { b"e-" } else { b"e" });
         let e = e.unsigned_abs();
         let width = if e >= 10 { 2 } else { 1 };
-        put_digits(out, len, width, e as u32);
+        put_digits(out, len, width, e);
         len + width
     }
 }

@@ -106,7 +106,11 @@ fn digits_at(v: u64, out: &mut [u8; INT_ROOM], at: usize) -> usize {
     let mut end = at;
     for (i, group) in [top, first, second].into_iter().take(1 + groups).enumerate() {
         let text = u64::from_le_bytes(eight_digits(group));
-        let (text, width) = if i == 0 { (text >> (8 * (8 - n)), n) } else { (text, 8) };
+        let (text, width) = if i == 0 {
+            (text >> (8 * (8 - n)), n)
+        } else {
+            (text, 8)
+        };
         put8(out, end, text.to_le_bytes());
         end += width;
     }
@@ -223,7 +227,14 @@ mod tests {
             x ^= x << 13;
             x ^= x >> 7;
             x ^= x << 17;
-            for v in [x, x >> (i % 64), i, u64::MAX - i, i * 100_000_000, (i * 100_000_000).wrapping_sub(1)] {
+            for v in [
+                x,
+                x >> (i % 64),
+                i,
+                u64::MAX - i,
+                i * 100_000_000,
+                (i * 100_000_000).wrapping_sub(1),
+            ] {
                 assert_eq!(div_1e8(v), v / 100_000_000, "{v}");
             }
         }
