@@ -227,7 +227,7 @@ fn texts_at_and_beside_midpoints_read_as_core_reads_them() {
         0x7F7F_FFFE,
         0x7F7F_FFFF, // f32::MAX and the overflow threshold: ties to infinity
     ];
-    let sampled = (0..0x7F80_0000u32).step_by(2039);
+    let sampled = (0..0x7F80_0000u32).step_by(8191);
     let mut n = 0;
     for bits in special.into_iter().chain(sampled) {
         for text in at_and_beside_midpoint(bits) {
@@ -236,7 +236,7 @@ fn texts_at_and_beside_midpoints_read_as_core_reads_them() {
             n += 2;
         }
     }
-    assert!(n > 6_000_000, "{n}");
+    assert!(n > 1_500_000, "{n}");
 }
 
 /// A random string over the grammar's alphabet (and a few letters).
