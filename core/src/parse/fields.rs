@@ -92,6 +92,42 @@ pub(crate) fn list<T, const N: usize>(
     Ok(items)
 }
 
+/// `list(input, sep, uint)` in one pass over the bytes, without cutting
+/// the fields out first: the same values and the same first error.
+pub(crate) fn uints<const N: usize>(input: &str, sep: u8) -> Result<Vec<u32, N>, ArgError> {
+    let mut items = Vec::new();
+    let mut value: u32 = 0;
+    let mut digits = 0;
+    let mut overflow = false;
+    // A separator after the last byte closes the last field.
+    for b in input.bytes().chain(core::iter::once(sep)) {
+        if b == sep {
+            if digits == 0 {
+                return Err(ArgError::Missing);
+            }
+            if overflow {
+                return Err(ArgError::OutOfRange);
+            }
+            items.push(value).map_err(|_| ArgError::TooMany)?;
+            (value, digits, overflow) = (0, 0, false);
+            continue;
+        }
+        let digit = b.wrapping_sub(b'0');
+        if digit > 9 {
+            return Err(ArgError::NotANumber);
+        }
+        match value
+            .checked_mul(10)
+            .and_then(|v| v.checked_add(u32::from(digit)))
+        {
+            Some(v) => value = v,
+            None => overflow = true,
+        }
+        digits += 1;
+    }
+    Ok(items)
+}
+
 /// Exactly `N` numbers separated by `sep`.
 pub(crate) fn numbers<const N: usize>(input: &str, sep: u8) -> Result<[f32; N], ArgError> {
     let mut values = [0.0; N];
@@ -118,5 +154,48 @@ pub(crate) fn split_first(input: &str, sep: u8) -> Result<(&str, &str), ArgError
     match cut(input, sep) {
         (head, Some(tail)) => Ok((head, tail)),
         (_, None) => Err(ArgError::Malformed),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every string of up to five bytes over digits, the separator and one
+    /// other byte, and long runs of digits around u32::MAX.
+    #[test]
+    fn one_pass_integer_lists_read_as_field_by_field_ones() {
+        let alphabet = [b'0', b'1', b'9', b',', b'x'];
+        let mut inputs = [0u8; 5];
+        for len in 0..=5 {
+            for n in 0..alphabet.len().pow(len) {
+                let mut k = n;
+                for slot in inputs.iter_mut().take(len as usize) {
+                    *slot = alphabet.get(k % alphabet.len()).copied().unwrap_or_default();
+                    k /= alphabet.len();
+                }
+                let text =
+                    core::str::from_utf8(inputs.get(..len as usize).unwrap_or_default()).unwrap_or_default();
+                assert_eq!(
+                    uints::<3>(text, b','),
+                    list::<u32, 3>(text, b',', uint),
+                    "{text:?}"
+                );
+            }
+        }
+        for text in [
+            "4294967295",
+            "4294967296",
+            "4294967296x",
+            "1,99999999999,x",
+            "0,0,0,0",
+            "007,08",
+        ] {
+            assert_eq!(
+                uints::<3>(text, b','),
+                list::<u32, 3>(text, b',', uint),
+                "{text:?}"
+            );
+        }
     }
 }

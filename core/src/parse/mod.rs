@@ -137,7 +137,7 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
             let (ext_id, ids) = fields::split_first(a, b':')?;
             Args::MwExec {
                 ext_id: fields::uint(ext_id)?,
-                wp_ids: fields::list(ids, b',', fields::uint)?,
+                wp_ids: fields::uints(ids, b',')?,
             }
         }
         Grammar::Ai1Mission => {
