@@ -59,7 +59,11 @@ pub(crate) fn eight_digits(v: u32) -> [u8; 8] {
 pub(crate) const INT_ROOM: usize = 24;
 
 /// Writes `v` in decimal at the start of `out`; returns the length.
+#[inline]
 pub(crate) fn write_u64(v: u64, out: &mut [u8; INT_ROOM]) -> usize {
+    if v < 100 {
+        return small_at(v as u32, out, 0);
+    }
     digits_at(v, out, 0)
 }
 
@@ -72,17 +76,21 @@ pub(crate) fn write_i64(v: i64, out: &mut [u8; INT_ROOM]) -> usize {
     digits_at(v.unsigned_abs(), out, sign)
 }
 
-/// Writes the digits of `v` at `at`; returns where they end.
+/// Writes `v` (below 100) at `at`: one or two digits (the second written
+/// over the first when there is only one); returns where they end.
 #[inline]
+fn small_at(v: u32, out: &mut [u8], at: usize) -> usize {
+    let [tens, units] = pair(v);
+    let two = usize::from(v >= 10);
+    put(out, at, tens);
+    put(out, at + two, units);
+    at + 1 + two
+}
+
+/// Writes the digits of `v` at `at`; returns where they end.
 fn digits_at(v: u64, out: &mut [u8; INT_ROOM], at: usize) -> usize {
     if v < 100 {
-        // Codes and small counts: one or two digits (the second written
-        // over the first when there is only one).
-        let [tens, units] = pair(v as u32);
-        let two = usize::from(v >= 10);
-        put(out, at, tens);
-        put(out, at + two, units);
-        return at + 1 + two;
+        return small_at(v as u32, out, at);
     }
     // 32-bit cores have no 64-bit division: split by multiplication into
     // a top below 10^8 and up to two eight-digit groups (a millisecond

@@ -96,36 +96,40 @@ pub(crate) fn list<T, const N: usize>(
 /// the fields out first: the same values and the same first error.
 pub(crate) fn uints<const N: usize>(input: &str, sep: u8) -> Result<Vec<u32, N>, ArgError> {
     let mut items = Vec::new();
-    let mut value: u32 = 0;
-    let mut digits = 0;
-    let mut overflow = false;
-    // A separator after the last byte closes the last field.
-    for b in input.bytes().chain(core::iter::once(sep)) {
-        if b == sep {
-            if digits == 0 {
-                return Err(ArgError::Missing);
+    let mut rest = input.as_bytes();
+    loop {
+        // One field: its digits up to the separator or the end.
+        let mut value: u32 = 0;
+        let mut digits = 0;
+        let mut overflow = false;
+        let mut more = false;
+        while let Some((&b, tail)) = rest.split_first() {
+            rest = tail;
+            if b == sep {
+                more = true;
+                break;
             }
-            if overflow {
-                return Err(ArgError::OutOfRange);
+            let digit = b.wrapping_sub(b'0');
+            if digit > 9 {
+                return Err(ArgError::NotANumber);
             }
-            items.push(value).map_err(|_| ArgError::TooMany)?;
-            (value, digits, overflow) = (0, 0, false);
-            continue;
+            let (times_ten, o1) = value.overflowing_mul(10);
+            let (next, o2) = times_ten.overflowing_add(u32::from(digit));
+            overflow |= o1 | o2;
+            value = next;
+            digits += 1;
         }
-        let digit = b.wrapping_sub(b'0');
-        if digit > 9 {
-            return Err(ArgError::NotANumber);
+        if digits == 0 {
+            return Err(ArgError::Missing);
         }
-        match value
-            .checked_mul(10)
-            .and_then(|v| v.checked_add(u32::from(digit)))
-        {
-            Some(v) => value = v,
-            None => overflow = true,
+        if overflow {
+            return Err(ArgError::OutOfRange);
         }
-        digits += 1;
+        items.push(value).map_err(|_| ArgError::TooMany)?;
+        if !more {
+            return Ok(items);
+        }
     }
-    Ok(items)
 }
 
 /// Exactly `N` numbers separated by `sep`.
