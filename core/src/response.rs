@@ -145,10 +145,18 @@ impl Sink<'_> {
         key: Option<&str>,
         value: impl FnOnce(&mut [u8; MAX]) -> usize,
     ) {
+        const { assert!(MAX <= SCRATCH, "the slow path's scratch holds every value") };
         let room = self.lead_and_room(comma, key, MAX);
         match room.and_then(|at| Some((at, self.buf.get_mut(at..)?.first_chunk_mut::<MAX>()?))) {
             Some((at, dst)) => self.len = at + value(dst),
-            None => self.scalar_slowly(comma, key, value),
+            None => {
+                // One copy of the slow path for every kind of value.
+                let mut value = Some(value);
+                self.scalar_slowly(comma, key, &mut |text: &mut [u8; SCRATCH]| {
+                    let dst = text.first_chunk_mut::<MAX>();
+                    value.take().zip(dst).map_or(0, |(value, dst)| value(dst))
+                });
+            }
         }
     }
 
@@ -179,13 +187,13 @@ impl Sink<'_> {
     /// needs escapes: the value into a scratch buffer, then piece by piece.
     #[cold]
     #[inline(never)]
-    fn scalar_slowly<const MAX: usize>(
+    fn scalar_slowly(
         &mut self,
         comma: bool,
         key: Option<&str>,
-        value: impl FnOnce(&mut [u8; MAX]) -> usize,
+        value: &mut dyn FnMut(&mut [u8; SCRATCH]) -> usize,
     ) {
-        let mut text = [0; MAX];
+        let mut text = [0; SCRATCH];
         let n = value(&mut text);
         self.scalar_in_pieces(comma, key, text.get(..n).unwrap_or_default());
     }
@@ -360,21 +368,11 @@ fn copy_plain(dst: &mut [u8], src: &[u8]) -> bool {
 }
 
 /// [`copy_plain`] for eight bytes and more (out of line: the short case is
-/// the hot one, and small): a plain copy, then the escape check a word at
-/// a time (the last word overlapping those before).
+/// the hot one, and small): a plain copy, then [`first_escape`].
 #[inline(never)]
 fn copy_plain_long(dst: &mut [u8], src: &[u8]) -> bool {
     dst.copy_from_slice(src);
-    let mut flags = 0;
-    let mut rest = src;
-    while let Some((word, tail)) = rest.split_first_chunk::<8>() {
-        flags |= escape_flags(u64::from_le_bytes(*word));
-        rest = tail;
-    }
-    if let Some(last) = src.last_chunk::<8>() {
-        flags |= escape_flags(u64::from_le_bytes(*last));
-    }
-    flags == 0
+    first_escape(src).is_none()
 }
 
 /// Writes `"key":` at `at` into `dst` (which has the room); where it ends,
@@ -650,6 +648,10 @@ fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
     s.head(ret, cmd, ts);
     (!s.overflow).then_some(s.len)
 }
+
+/// Room for the longest scalar value: an f64 by Ryu, and an integer's
+/// spare bytes.
+const SCRATCH: usize = 24;
 
 /// Room for the longest head and the spare bytes of its digit stores.
 const HEAD_ROOM: usize = HEAD_RESERVE + 8;

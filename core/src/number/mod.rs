@@ -59,11 +59,7 @@ pub(crate) fn eight_digits(v: u32) -> [u8; 8] {
 pub(crate) const INT_ROOM: usize = 24;
 
 /// Writes `v` in decimal at the start of `out`; returns the length.
-#[inline]
 pub(crate) fn write_u64(v: u64, out: &mut [u8; INT_ROOM]) -> usize {
-    if v < 100 {
-        return small_at(v as u32, out, 0);
-    }
     digits_at(v, out, 0)
 }
 

@@ -20,8 +20,10 @@ pub(crate) fn float(token: &str) -> Result<f32, ArgError> {
         // Overflow to infinity is the only way to a non-finite value.
         Some(v) => super::rules::finite(v),
         None => {
-            let word = token.trim_start_matches(['+', '-']);
-            let non_finite = ["nan", "inf", "infinity"]
+            let bytes = token.as_bytes();
+            let signs = bytes.iter().take_while(|&&b| b == b'+' || b == b'-').count();
+            let word = bytes.get(signs..).unwrap_or_default();
+            let non_finite = [&b"nan"[..], b"inf", b"infinity"]
                 .iter()
                 .any(|w| word.eq_ignore_ascii_case(w));
             Err(if non_finite {
