@@ -108,9 +108,10 @@ impl Sink<'_> {
     fn escaped(&mut self, s: &str) {
         let mut rest = s.as_bytes();
         // Escapes are rare: copy the runs between them in one go.
-        loop {
-            let run = first_escape(rest).unwrap_or(rest.len());
-            let (plain, escape) = rest.split_at_checked(run).unwrap_or_default();
+        while let Some(run) = first_escape(rest) {
+            let Some((plain, escape)) = rest.split_at_checked(run) else {
+                return;
+            };
             self.bytes(plain);
             let Some((&b, tail)) = escape.split_first() else {
                 return;
@@ -132,6 +133,7 @@ impl Sink<'_> {
             }
             rest = tail;
         }
+        self.bytes(rest);
     }
 
     /// A scalar member or element: `,` if `comma`, `"key":` if there is a
