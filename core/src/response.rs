@@ -72,10 +72,22 @@ impl Sink<'_> {
         self.byte(b'"');
     }
 
-    /// `lead`, `s` as a JSON string, then `trail`: in one piece when `s`
-    /// needs no escapes (keys and most values), which is most of a
-    /// response.
+    /// `lead`, `s` as a JSON string, then `trail` (string values, and the
+    /// keys of nested objects and arrays; scalar members have their own
+    /// path, [`Sink::lead_and_room`]). On 32-bit targets, microcontrollers
+    /// with little flash, always in pieces: 440 bytes less code, for more
+    /// instructions per string.
     fn quoted(&mut self, lead: Option<u8>, s: &str, trail: Option<u8>) {
+        #[cfg(target_pointer_width = "64")]
+        self.quoted_in_one(lead, s, trail);
+        #[cfg(not(target_pointer_width = "64"))]
+        self.quoted_in_pieces(lead, s, trail);
+    }
+
+    /// [`Sink::quoted`] in one piece when `s` needs no escapes (most
+    /// strings): one capacity check, the text copied and checked in words.
+    #[cfg_attr(not(target_pointer_width = "64"), allow(dead_code))]
+    fn quoted_in_one(&mut self, lead: Option<u8>, s: &str, trail: Option<u8>) {
         let text = s.as_bytes();
         let at = usize::from(lead.is_some());
         let end = at + 1 + text.len();
@@ -95,13 +107,17 @@ impl Sink<'_> {
             }
         } else {
             self.len = start;
-            if let Some(b) = lead {
-                self.byte(b);
-            }
-            self.string(&[s]);
-            if let Some(b) = trail {
-                self.byte(b);
-            }
+            self.quoted_in_pieces(lead, s, trail);
+        }
+    }
+
+    fn quoted_in_pieces(&mut self, lead: Option<u8>, s: &str, trail: Option<u8>) {
+        if let Some(b) = lead {
+            self.byte(b);
+        }
+        self.string(&[s]);
+        if let Some(b) = trail {
+            self.byte(b);
         }
     }
 
@@ -167,7 +183,8 @@ impl Sink<'_> {
     /// value goes. Inlined, so that a constant key is checked for escapes
     /// and copied at compile time. `None` when out of room or the key needs
     /// escapes: then nothing was written.
-    #[inline]
+    #[cfg_attr(target_pointer_width = "64", inline)]
+    #[cfg_attr(not(target_pointer_width = "64"), inline(never))]
     fn lead_and_room(&mut self, comma: bool, key: Option<&str>, value_max: usize) -> Option<usize> {
         if self.overflow {
             return None;

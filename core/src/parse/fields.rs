@@ -1,38 +1,63 @@
-//! Field-level grammar: numbers, flags, and separated field lists. Each
-//! function takes one argument string and either returns a typed value or
-//! a typed [`ArgError`]; none of them panics.
+//! Field-level grammar: numbers, flags, and separated field lists, written
+//! with nom. Each function takes one argument string and either returns a
+//! typed value or a typed [`ArgError`]; none of them panics.
+//!
+//! nom runs on the bytes (every byte the grammar looks for is ASCII, so a
+//! field cut there is whole characters): no UTF-8 decoding per character.
+//! The digits nom recognises are turned into values by [`crate::number`].
 
 use heapless::Vec;
+use nom::bytes::complete::take_till;
+use nom::character::complete::{char, digit0, digit1, satisfy};
+use nom::combinator::{all_consuming, opt, rest};
+use nom::error::ErrorKind;
+use nom::sequence::{preceded, separated_pair};
+use nom::{IResult, Offset, Parser};
 
 use crate::error::ArgError;
 use crate::number::parse_f32;
 
-use super::scan::{cut, split};
+type NomError<'a> = nom::error::Error<&'a [u8]>;
 
-/// A finite decimal number that fits an `f32`, correctly rounded:
-/// `[+-]? (digits ('.' digits?)? | '.' digits) ([eE] [+-]? digits)?`, so
-/// `nan`, `inf` and hex never get through.
+/// `[+-]? (digits ('.' digits?)? | '.' digits) ([eE] [+-]? digits)?`:
+/// decimal notation only, so `nan`, `inf` and hex never get through. nom's
+/// parsers in sequence rather than nested `alt`s, which would try the
+/// digits twice and build an error for every branch not taken.
+fn decimal(i: &[u8]) -> IResult<&[u8], &[u8]> {
+    let sign = || opt(satisfy(|c| c == '+' || c == '-'));
+    let start = i;
+    let (i, _) = sign().parse(i)?;
+    let (i, int) = digit0(i)?;
+    let (i, frac) = opt(preceded(char('.'), digit0)).parse(i)?;
+    if int.is_empty() && frac.is_none_or(<[u8]>::is_empty) {
+        return Err(nom::Err::Error(NomError::new(i, ErrorKind::Digit)));
+    }
+    let (i, _) = opt((satisfy(|c| c == 'e' || c == 'E'), sign(), digit1)).parse(i)?;
+    Ok((i, start.get(..start.offset(i)).unwrap_or_default()))
+}
+
+/// A finite decimal number that fits an `f32`, correctly rounded.
 pub(crate) fn float(token: &str) -> Result<f32, ArgError> {
     if token.is_empty() {
         return Err(ArgError::Missing);
     }
-    match parse_f32(token) {
-        // Overflow to infinity is the only way to a non-finite value.
-        Some(v) => super::rules::finite(v),
-        None => {
-            let bytes = token.as_bytes();
-            let signs = bytes.iter().take_while(|&&b| b == b'+' || b == b'-').count();
-            let word = bytes.get(signs..).unwrap_or_default();
-            let non_finite = [&b"nan"[..], b"inf", b"infinity"]
-                .iter()
-                .any(|w| word.eq_ignore_ascii_case(w));
-            Err(if non_finite {
-                ArgError::NotFinite
-            } else {
-                ArgError::NotANumber
-            })
-        }
+    if all_consuming(decimal).parse(token.as_bytes()).is_err() {
+        let bytes = token.as_bytes();
+        let signs = bytes.iter().take_while(|&&b| b == b'+' || b == b'-').count();
+        let word = bytes.get(signs..).unwrap_or_default();
+        let non_finite = [&b"nan"[..], b"inf", b"infinity"]
+            .iter()
+            .any(|w| word.eq_ignore_ascii_case(w));
+        return Err(if non_finite {
+            ArgError::NotFinite
+        } else {
+            ArgError::NotANumber
+        });
     }
+    // The syntax is checked above, so only overflow to infinity remains.
+    parse_f32(token)
+        .ok_or(ArgError::NotANumber)
+        .and_then(super::rules::finite)
 }
 
 /// An unsigned decimal integer that fits a `u32`.
@@ -40,26 +65,15 @@ pub(crate) fn uint(token: &str) -> Result<u32, ArgError> {
     if token.is_empty() {
         return Err(ArgError::Missing);
     }
-    let mut value: u32 = 0;
-    let mut overflow = false;
-    for b in token.bytes() {
-        let digit = b.wrapping_sub(b'0');
-        if digit > 9 {
-            return Err(ArgError::NotANumber);
-        }
-        match value
-            .checked_mul(10)
-            .and_then(|v| v.checked_add(u32::from(digit)))
-        {
-            Some(v) => value = v,
-            None => overflow = true,
-        }
-    }
-    if overflow {
-        Err(ArgError::OutOfRange)
-    } else {
-        Ok(value)
-    }
+    let (_, digits) = all_consuming(digit1::<&[u8], NomError>)
+        .parse(token.as_bytes())
+        .map_err(|_| ArgError::NotANumber)?;
+    digits
+        .iter()
+        .try_fold(0u32, |v, &d| {
+            v.checked_mul(10)?.checked_add(u32::from(d.wrapping_sub(b'0')))
+        })
+        .ok_or(ArgError::OutOfRange)
 }
 
 /// An integer PWM value, 0–65535.
@@ -77,131 +91,128 @@ pub(crate) fn flag(token: &str) -> Result<bool, ArgError> {
     }
 }
 
+/// Calls `each` with every field of `input` between the `sep`s (ASCII), in
+/// order, as `str::split` cuts them: one empty field for an empty input,
+/// one after a trailing `sep`. nom's `take_till` and `char` in a loop (a
+/// `fold_many0` costs several times more per field).
+fn fields<'a>(input: &'a str, sep: char, each: &mut dyn FnMut(&'a str)) -> Result<(), ArgError> {
+    let bytes = input.as_bytes();
+    let sep_byte = u8::try_from(sep).map_err(|_| ArgError::Malformed)?;
+    let mut rest = bytes;
+    loop {
+        let (after, field) = take_till::<_, &[u8], NomError>(|b| b == sep_byte)
+            .parse(rest)
+            .map_err(|_| ArgError::Malformed)?;
+        // The field as text: a cut at an ASCII byte is at a character
+        // boundary.
+        let at = bytes.offset(field);
+        each(input.get(at..at + field.len()).unwrap_or_default());
+        match char::<_, NomError>(sep).parse(after) {
+            Ok((next, _)) => rest = next,
+            Err(_) => return Ok(()),
+        }
+    }
+}
+
 /// Splits `input` at every `sep` and converts each field with `item`,
 /// keeping at most `N`. More than `N` fields is [`ArgError::TooMany`]; the
 /// first field that fails to convert decides the error.
 pub(crate) fn list<T, const N: usize>(
     input: &str,
-    sep: u8,
+    sep: char,
     item: impl Fn(&str) -> Result<T, ArgError>,
 ) -> Result<Vec<T, N>, ArgError> {
-    // Filled in place: a fixed-capacity vector moved per field would be
-    // copied whole each time.
+    // Filled in place: a fixed-capacity vector folded by value would be
+    // copied whole once per field.
     let mut items = Vec::new();
-    for token in split(input, sep) {
-        items.push(item(token)?).map_err(|_| ArgError::TooMany)?;
-    }
-    Ok(items)
-}
-
-/// `list(input, sep, uint)` in one pass over the bytes, without cutting
-/// the fields out first: the same values and the same first error.
-pub(crate) fn uints<const N: usize>(input: &str, sep: u8) -> Result<Vec<u32, N>, ArgError> {
-    let mut items = Vec::new();
-    let mut rest = input.as_bytes();
-    loop {
-        // One field: its digits up to the separator or the end.
-        let mut value: u32 = 0;
-        let mut digits = 0;
-        let mut overflow = false;
-        let mut more = false;
-        while let Some((&b, tail)) = rest.split_first() {
-            rest = tail;
-            if b == sep {
-                more = true;
-                break;
-            }
-            let digit = b.wrapping_sub(b'0');
-            if digit > 9 {
-                return Err(ArgError::NotANumber);
-            }
-            let (times_ten, o1) = value.overflowing_mul(10);
-            let (next, o2) = times_ten.overflowing_add(u32::from(digit));
-            overflow |= o1 | o2;
-            value = next;
-            digits += 1;
+    let mut failure = None;
+    fields(input, sep, &mut |token| {
+        if failure.is_none()
+            && let Err(e) = item(token).and_then(|v| items.push(v).map_err(|_| ArgError::TooMany))
+        {
+            failure = Some(e);
         }
-        if digits == 0 {
-            return Err(ArgError::Missing);
-        }
-        if overflow {
-            return Err(ArgError::OutOfRange);
-        }
-        items.push(value).map_err(|_| ArgError::TooMany)?;
-        if !more {
-            return Ok(items);
-        }
-    }
+    })?;
+    failure.map_or(Ok(items), Err)
 }
 
 /// Exactly `N` numbers separated by `sep`.
-pub(crate) fn numbers<const N: usize>(input: &str, sep: u8) -> Result<[f32; N], ArgError> {
+pub(crate) fn numbers<const N: usize>(input: &str, sep: char) -> Result<[f32; N], ArgError> {
     let mut values = [0.0; N];
     fill(input, sep, &mut values)?;
     Ok(values)
 }
 
 /// Exactly `values.len()` numbers separated by `sep`, into `values` (one
-/// copy of the code for every count).
-fn fill(input: &str, sep: u8, values: &mut [f32]) -> Result<(), ArgError> {
+/// copy of the code for every count); the first field that fails decides
+/// the error, too many or too few is malformed.
+fn fill(input: &str, sep: char, values: &mut [f32]) -> Result<(), ArgError> {
     let mut slots = values.iter_mut();
-    for token in split(input, sep) {
-        let v = float(token)?;
-        *slots.next().ok_or(ArgError::Malformed)? = v;
-    }
-    match slots.next() {
-        None => Ok(()),
-        Some(_) => Err(ArgError::Malformed),
+    let mut failure = None;
+    fields(input, sep, &mut |token| {
+        if failure.is_none() {
+            let slot = slots.next();
+            match (float(token), slot) {
+                (Ok(v), Some(slot)) => *slot = v,
+                (Ok(_), None) => failure = Some(ArgError::Malformed),
+                (Err(e), _) => failure = Some(e),
+            }
+        }
+    })?;
+    match (failure, slots.next()) {
+        (Some(e), _) => Err(e),
+        (None, Some(_)) => Err(ArgError::Malformed),
+        (None, None) => Ok(()),
     }
 }
 
-/// Splits at the first `sep`: `(head, tail)`; no `sep` is malformed.
-pub(crate) fn split_first(input: &str, sep: u8) -> Result<(&str, &str), ArgError> {
-    match cut(input, sep) {
-        (head, Some(tail)) => Ok((head, tail)),
-        (_, None) => Err(ArgError::Malformed),
-    }
+/// Splits at the first `sep` (ASCII): `(head, tail)`; no `sep` is
+/// malformed.
+pub(crate) fn split_first(input: &str, sep: char) -> Result<(&str, &str), ArgError> {
+    let bytes = input.as_bytes();
+    let sep_byte = u8::try_from(sep).map_err(|_| ArgError::Malformed)?;
+    let (_, (head, tail)) = separated_pair(
+        take_till::<_, &[u8], NomError>(|b| b == sep_byte),
+        char(sep),
+        rest,
+    )
+    .parse(bytes)
+    .map_err(|_| ArgError::Malformed)?;
+    // Cut at an ASCII byte: both sides are whole characters.
+    let text = |part: &[u8]| {
+        let at = bytes.offset(part);
+        input.get(at..at + part.len())
+    };
+    text(head).zip(text(tail)).ok_or(ArgError::Malformed)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// Every string of up to five bytes over digits, the separator and one
-    /// other byte, and long runs of digits around u32::MAX.
+    /// Every string of up to six bytes over the characters a decimal is
+    /// made of (and two that it is not): nom's grammar accepts exactly
+    /// what the number module's own scanner accepts, with the same value.
     #[test]
-    fn one_pass_integer_lists_read_as_field_by_field_ones() {
-        let alphabet = [b'0', b'1', b'9', b',', b'x'];
-        let mut inputs = [0u8; 5];
-        for len in 0..=5 {
+    fn the_nom_grammar_and_the_number_scanner_accept_the_same_decimals() {
+        let alphabet = *b"0159.eE+-x";
+        let mut text = [0u8; 6];
+        for len in 1..=6u32 {
             for n in 0..alphabet.len().pow(len) {
                 let mut k = n;
-                for slot in inputs.iter_mut().take(len as usize) {
+                for slot in text.iter_mut().take(len as usize) {
                     *slot = alphabet.get(k % alphabet.len()).copied().unwrap_or_default();
                     k /= alphabet.len();
                 }
-                let text =
-                    core::str::from_utf8(inputs.get(..len as usize).unwrap_or_default()).unwrap_or_default();
-                assert_eq!(
-                    uints::<3>(text, b','),
-                    list::<u32, 3>(text, b',', uint),
-                    "{text:?}"
-                );
+                let bytes = text.get(..len as usize).unwrap_or_default();
+                let token = core::str::from_utf8(bytes).unwrap_or_default();
+                let nom = all_consuming(decimal).parse(bytes).is_ok();
+                let ours = parse_f32(token);
+                assert_eq!(nom, ours.is_some(), "{token:?}");
+                if let (Ok(v), Some(w)) = (float(token), ours) {
+                    assert_eq!(v.to_bits(), w.to_bits(), "{token:?}");
+                }
             }
-        }
-        for text in [
-            "4294967295",
-            "4294967296",
-            "4294967296x",
-            "1,99999999999,x",
-            "0,0,0,0",
-            "007,08",
-        ] {
-            assert_eq!(
-                uints::<3>(text, b','),
-                list::<u32, 3>(text, b',', uint),
-                "{text:?}"
-            );
         }
     }
 }

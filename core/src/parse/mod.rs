@@ -86,43 +86,43 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
         Grammar::NewPassword => Args::NewPassword(rules::new_password(a)?),
         Grammar::ParamName => Args::ParamName(rules::param_name(a)?),
         Grammar::SetParam => {
-            let (name, value) = fields::split_first(a, b':')?;
+            let (name, value) = fields::split_first(a, ':')?;
             Args::SetParam {
                 name: rules::param_name(name)?,
                 value: rules::text(value)?,
             }
         }
         Grammar::Setpoint => {
-            let [x, y, z, yaw] = fields::numbers(a, b':')?;
+            let [x, y, z, yaw] = fields::numbers(a, ':')?;
             Args::Setpoint(Pose { x, y, z, yaw })
         }
         Grammar::Point => {
-            let [x, y, z] = fields::numbers(a, b':')?;
+            let [x, y, z] = fields::numbers(a, ':')?;
             Args::Point(Point { x, y, z })
         }
         Grammar::Pose => {
-            let [x, y, z, yaw] = fields::numbers(a, b',')?;
+            let [x, y, z, yaw] = fields::numbers(a, ',')?;
             Args::Pose(Pose { x, y, z, yaw })
         }
         Grammar::Zyhk => {
-            let (heights, land) = match fields::split_first(a, b' ') {
+            let (heights, land) = match fields::split_first(a, ' ') {
                 Ok((heights, land)) => (heights, Some(land)),
                 Err(_) => (a, None),
             };
             let land = match land {
                 Some(l) => {
-                    let [x, y, yaw] = fields::numbers(l, b',')?;
+                    let [x, y, yaw] = fields::numbers(l, ',')?;
                     Some(LandPoint { x, y, yaw })
                 }
                 None => None,
             };
             Args::Zyhk {
-                heights: fields::list(heights, b',', fields::float)?,
+                heights: fields::list(heights, ',', fields::float)?,
                 land,
             }
         }
         Grammar::Mission => {
-            let (ext_id, payload) = fields::split_first(a, b':')?;
+            let (ext_id, payload) = fields::split_first(a, ':')?;
             let payload = if payload.starts_with(['{', '[']) {
                 Payload::Json(rules::json(payload)?)
             } else {
@@ -134,14 +134,14 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
             }
         }
         Grammar::MwExec => {
-            let (ext_id, ids) = fields::split_first(a, b':')?;
+            let (ext_id, ids) = fields::split_first(a, ':')?;
             Args::MwExec {
                 ext_id: fields::uint(ext_id)?,
-                wp_ids: fields::uints(ids, b',')?,
+                wp_ids: fields::list(ids, ',', fields::uint)?,
             }
         }
         Grammar::Ai1Mission => {
-            let (task_id, file) = fields::split_first(a, b':')?;
+            let (task_id, file) = fields::split_first(a, ':')?;
             Args::Ai1Mission {
                 task_id: rules::task_id(task_id)?,
                 file: rules::path(file)?,

@@ -34,14 +34,3 @@ pub(crate) fn cut(text: &str, needle: u8) -> (&str, Option<&str>) {
         None => (text, None),
     }
 }
-
-/// The fields of `text` between every `sep`, as `str::split` gives them:
-/// one empty field for an empty text, one after a trailing `sep`.
-pub(crate) fn split(text: &str, sep: u8) -> impl Iterator<Item = &str> {
-    let mut rest = Some(text);
-    core::iter::from_fn(move || {
-        let (field, after) = cut(rest?, sep);
-        rest = after;
-        Some(field)
-    })
-}
