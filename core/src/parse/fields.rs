@@ -125,15 +125,14 @@ pub(crate) fn list<T, const N: usize>(
     // Filled in place: a fixed-capacity vector folded by value would be
     // copied whole once per field.
     let mut items = Vec::new();
-    let mut failure = None;
+    let mut outcome = Ok(());
     fields(input, sep, &mut |token| {
-        if failure.is_none()
-            && let Err(e) = item(token).and_then(|v| items.push(v).map_err(|_| ArgError::TooMany))
-        {
-            failure = Some(e);
+        if outcome.is_ok() {
+            outcome = item(token).and_then(|v| items.push(v).map_err(|_| ArgError::TooMany));
         }
     })?;
-    failure.map_or(Ok(items), Err)
+    outcome?;
+    Ok(items)
 }
 
 /// Exactly `N` numbers separated by `sep`.
