@@ -81,7 +81,7 @@ impl PySpec {
     /// One line saying what the command does.
     #[getter]
     fn summary(&self) -> &'static str {
-        self.spec.summary
+        self.spec.summary()
     }
 
     /// The heading it stands under in the specification's Command
