@@ -42,23 +42,19 @@
 //!   only one of them at a time).
 
 use embassy_time::{Duration, Instant, with_deadline, with_timeout};
-use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY, Outcome, Ticket};
+use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY};
 
-use crate::accept::accept_value;
 use crate::frame::{self, Opcode};
 use crate::handshake::{self, Rejection, Request};
 use crate::log::debug;
 use crate::policy::Policy;
 use crate::receive::{Event, Reader};
+use crate::send::{Outgoing, Sender, Sent, write_reply};
 use crate::service::{Handler, Service};
-use crate::transport::{self, Transport, write_all};
+use crate::transport::{self, Transport};
 
 /// The smallest message buffer: it must hold an upgrade request's head.
 pub const MIN_MESSAGE: usize = 256;
-
-/// The `101` answer up to the accept value.
-const SWITCHING: &[u8] =
-    b"HTTP/1.1 101 Switching Protocols\r\nConnection: Upgrade\r\nUpgrade: websocket\r\nSec-WebSocket-Accept: ";
 
 /// A connection's limits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -90,6 +86,10 @@ pub enum Error<E> {
     Rejected(Rejection),
     /// The buffers are smaller than [`Limits`] and [`MIN_MESSAGE`] require.
     Buffers,
+    /// embedded-websocket refused to write a frame (never expected: its
+    /// room in the transmit buffer is reserved first, and nothing is sent
+    /// after a close frame).
+    Framing,
 }
 
 impl<E> From<E> for Error<E> {
@@ -98,20 +98,11 @@ impl<E> From<E> for Error<E> {
     }
 }
 
-/// What a reply written in place asks for next.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Sent {
-    Reply,
-    ReplyThenClose(CloseCode),
-    Close(CloseCode),
-    /// Nothing written: ask again once the service says the ticket is ready.
-    Pending(Ticket),
-}
-
 /// One WebSocket connection: [`Connection::accept`] the upgrade, then
 /// [`Connection::run`] until it closes.
 pub struct Connection<'b> {
     reader: Reader<'b>,
+    sender: Sender,
     limits: Limits,
     /// Until when the session may stay without logging in.
     login: Option<Instant>,
@@ -122,6 +113,7 @@ impl<'b> Connection<'b> {
     pub fn new(message: &'b mut [u8], limits: Limits) -> Self {
         Connection {
             reader: Reader::new(message),
+            sender: Sender::new(),
             limits,
             login: None,
         }
@@ -149,27 +141,24 @@ impl<'b> Connection<'b> {
         {
             return Err(Error::Buffers);
         }
-        loop {
+        let verdict = loop {
             let reader = &mut self.reader;
             match io.read_with(|w| reader.head(w)).await? {
                 None => return Err(Error::Rejected(Rejection::Incomplete)),
                 Some(None) => {}
-                Some(Some(Ok(_))) => break,
-                Some(Some(Err(why))) => return reject(io, why).await,
+                Some(Some(Ok(_))) => break check(self.reader.request(), policy, admit),
+                Some(Some(Err(why))) => break Err(why),
             }
-        }
-        let checked = handshake::parse(self.reader.request()).and_then(|r| policy.check(&r).map(|()| r));
-        let request = match checked {
-            Ok(request) => request,
-            Err(why) => return reject(io, why).await,
         };
-        if !admit(&request) {
-            return reject(io, Rejection::TooManySessions).await;
-        }
-        let accept = accept_value(request.key);
+        let sent = match verdict {
+            Ok(key) => self.sender.send(io, Outgoing::Switch(key)).await,
+            Err(why) => match self.sender.send(io, Outgoing::Refusal(why)).await {
+                Ok(()) => Err(io.flush().await.map_or_else(Error::Io, |()| Error::Rejected(why))),
+                Err(e) => Err(e),
+            },
+        };
         self.reader.start_frames();
-        write_all(io, &[SWITCHING, &accept, b"\r\n\r\n"]).await?;
-        Ok(())
+        sent
     }
 
     /// Serves messages of `session` until the connection closes; `admitted`
@@ -186,7 +175,7 @@ impl<'b> Connection<'b> {
         loop {
             let event = match self.next_event(io).await {
                 Err(Error::LoginTimeout) => {
-                    let _ = with_timeout(self.limits.close, send_close(io, CloseCode::Policy)).await;
+                    let _ = with_timeout(self.limits.close, self.sender.close(io, CloseCode::Policy)).await;
                     return Err(Error::LoginTimeout);
                 }
                 other => other?,
@@ -200,7 +189,7 @@ impl<'b> Connection<'b> {
                     .await
                     .map_err(|_| Error::LoginTimeout)??,
                 Event::Fail(code) => Some(
-                    with_deadline(login, send_close(io, code))
+                    with_deadline(login, self.sender.close(io, code))
                         .await
                         .map_err(|_| Error::LoginTimeout)??,
                 ),
@@ -250,7 +239,7 @@ impl<'b> Connection<'b> {
     /// returns the close code if the connection is closing, and whether
     /// the session is admitted now.
     async fn respond<T: Transport, S: Service>(
-        &self,
+        &mut self,
         io: &mut T,
         service: &S,
         session: &mut S::Session,
@@ -291,21 +280,19 @@ impl<'b> Connection<'b> {
             (Sent::ReplyThenClose(code) | Sent::Close(code), _) => code,
             (Sent::Pending(_), _) => CloseCode::InternalError,
         };
-        Ok((Some(send_close(io, code).await?), now))
+        Ok((Some(self.sender.close(io, code).await?), now))
     }
 
     /// Answers a control frame; `Some(code)` when the connection is closing.
     async fn control<T: Transport>(
-        &self,
+        &mut self,
         io: &mut T,
         opcode: Opcode,
     ) -> Result<Option<u16>, Error<T::Error>> {
         let payload = self.reader.control();
         match opcode {
             Opcode::Ping => {
-                let mut header = [0u8; 2];
-                frame::write_header(&mut header, Opcode::Pong, payload.len());
-                write_all(io, &[&header, payload]).await?;
+                self.sender.send(io, Outgoing::Pong(payload)).await?;
                 Ok(None)
             }
             Opcode::Close => {
@@ -319,7 +306,7 @@ impl<'b> Connection<'b> {
                     },
                 };
                 debug!("peer closed with {}", code);
-                write_all(io, &[&close_frame(code)]).await?;
+                self.sender.send(io, Outgoing::CloseReply(code)).await?;
                 Ok(Some(code))
             }
             _ => Ok(None),
@@ -327,60 +314,19 @@ impl<'b> Connection<'b> {
     }
 }
 
-/// Runs `handle` on the reply room of `room` and frames its reply in
-/// place; returns the bytes to send and what comes next.
-fn write_reply(
-    room: &mut [u8],
-    capacity: usize,
-    handle: impl for<'o> FnOnce(&'o mut [u8]) -> Outcome<'o>,
-) -> (usize, Sent) {
-    let reserve = frame::header_len(capacity);
-    let Some(window) = room.get_mut(..reserve + capacity) else {
-        return (0, Sent::Close(CloseCode::InternalError));
-    };
-    let Some(body) = window.get_mut(reserve..) else {
-        return (0, Sent::Close(CloseCode::InternalError));
-    };
-    let start = body.as_ptr();
-    let (len, sent) = match handle(body) {
-        Outcome::Close(code) => return (0, Sent::Close(code)),
-        Outcome::Pending(ticket, _) => return (0, Sent::Pending(ticket)),
-        // A reply must be written where the handler was asked to write it.
-        Outcome::Reply(r) if core::ptr::eq(r.as_ptr(), start) => (r.len(), Sent::Reply),
-        Outcome::ReplyThenClose(r, code) if core::ptr::eq(r.as_ptr(), start) => {
-            (r.len(), Sent::ReplyThenClose(code))
-        }
-        _ => return (0, Sent::Close(CloseCode::InternalError)),
-    };
-    let header = frame::header_len(len);
-    if len > capacity {
-        return (0, Sent::Close(CloseCode::InternalError));
+/// Validates a complete request head and checks it against `policy` and
+/// `admit`; the key to answer, or why the request is refused.
+fn check<'r>(
+    head: &'r [u8],
+    policy: &Policy<'_>,
+    admit: impl FnOnce(&Request<'_>) -> bool,
+) -> Result<&'r [u8; handshake::KEY_LEN], Rejection> {
+    let request = handshake::parse(head)?;
+    policy.check(&request)?;
+    if !admit(&request) {
+        return Err(Rejection::TooManySessions);
     }
-    // The header was given room for the longest reply; a shorter one
-    // moves the reply up to meet it.
-    window.copy_within(reserve..reserve + len, header);
-    match frame::write_header(window, Opcode::Text, len) {
-        Some(_) => (header + len, sent),
-        None => (0, Sent::Close(CloseCode::InternalError)),
-    }
-}
-
-/// A close frame carrying `code` and no reason.
-fn close_frame(code: u16) -> [u8; 4] {
-    let [hi, lo] = code.to_be_bytes();
-    [0x88, 2, hi, lo]
-}
-
-/// Sends a close frame; returns the code for the caller to report.
-async fn send_close<T: Transport>(io: &mut T, code: CloseCode) -> Result<u16, Error<T::Error>> {
-    write_all(io, &[&close_frame(code.code())]).await?;
-    Ok(code.code())
-}
-
-async fn reject<T: Transport>(io: &mut T, why: Rejection) -> Result<(), Error<T::Error>> {
-    write_all(io, &[why.answer()]).await?;
-    io.flush().await?;
-    Err(Error::Rejected(why))
+    Ok(request.key)
 }
 
 /// Close codes a peer may send (RFC 6455, section 7.4): the defined ones

@@ -4,9 +4,11 @@
 //! Parsing checks every rule a server must enforce (reserved bits, masked
 //! client frames, control frames unfragmented and at most 125 bytes, 64-bit
 //! lengths with the top bit clear) before any payload is read, never panics
-//! and never reads past the slice it is given. Server frames are written by
-//! [`write_header`]: unmasked, with the minimal length form RFC 6455
-//! requires.
+//! and never reads past the slice it is given. The header of a text reply
+//! is written by [`write_text_header`] (unmasked, with the minimal length form
+//! RFC 6455 requires), in front of the reply the protocol core already
+//! wrote into the transmit buffer; control frames are framed by
+//! embedded-websocket (see `send.rs` for why the split).
 
 use lluav_core::CloseCode;
 
@@ -132,21 +134,14 @@ pub const fn header_len(len: usize) -> usize {
     }
 }
 
-/// Writes a final (FIN) unmasked frame header for a `len`-byte payload at
-/// the start of `out`; returns its length, or `None` if `out` is shorter.
-pub fn write_header(out: &mut [u8], opcode: Opcode, len: usize) -> Option<usize> {
-    let code = match opcode {
-        Opcode::Continuation => 0x0,
-        Opcode::Text => 0x1,
-        Opcode::Binary => 0x2,
-        Opcode::Close => 0x8,
-        Opcode::Ping => 0x9,
-        Opcode::Pong => 0xa,
-    };
+/// Writes a final (FIN) unmasked text frame header for a `len`-byte
+/// payload at the start of `out`; returns its length, or `None` if `out`
+/// is shorter.
+pub fn write_text_header(out: &mut [u8], len: usize) -> Option<usize> {
     let n = header_len(len);
     let head = out.get_mut(..n)?;
     let (first, rest) = head.split_first_mut()?;
-    *first = 0x80 | code;
+    *first = 0x81;
     let (second, extended) = rest.split_first_mut()?;
     match n {
         2 => *second = len as u8,
@@ -206,16 +201,16 @@ mod tests {
     #[test]
     fn writes_the_minimal_length_form() {
         let mut out = [0u8; 10];
-        assert_eq!(write_header(&mut out, Opcode::Text, 125), Some(2));
+        assert_eq!(write_text_header(&mut out, 125), Some(2));
         assert_eq!(out[..2], [0x81, 125]);
-        assert_eq!(write_header(&mut out, Opcode::Pong, 126), Some(4));
-        assert_eq!(out[..4], [0x8a, 126, 0, 126]);
+        assert_eq!(write_text_header(&mut out, 126), Some(4));
+        assert_eq!(out[..4], [0x81, 126, 0, 126]);
         // 65535 still fits the 16-bit form (Autobahn case 1.1.6).
-        assert_eq!(write_header(&mut out, Opcode::Text, 0xffff), Some(4));
+        assert_eq!(write_text_header(&mut out, 0xffff), Some(4));
         assert_eq!(out[..4], [0x81, 126, 0xff, 0xff]);
-        assert_eq!(write_header(&mut out, Opcode::Text, 0x10000), Some(10));
+        assert_eq!(write_text_header(&mut out, 0x10000), Some(10));
         assert_eq!(out, [0x81, 127, 0, 0, 0, 0, 0, 1, 0, 0]);
-        assert_eq!(write_header(&mut out[..3], Opcode::Text, 126), None);
+        assert_eq!(write_text_header(&mut out[..3], 126), None);
     }
 
     #[test]

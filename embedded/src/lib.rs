@@ -16,7 +16,9 @@
 //! [`handshake`] and [`policy`] (Origin and Host), frames by [`frame`],
 //! and [`admission`] decides who gets the few slots (a spare listener,
 //! eviction of half-open and not-logged-in connections, per-address
-//! limits, deadlines).
+//! limits, deadlines). embedded-websocket builds the `101` answer (its
+//! `Sec-WebSocket-Accept` value) and frames pongs and close frames; it
+//! never sees a byte the peer sent before our own validation did.
 //!
 //! ```no_run
 //! # async fn firmware(stack: embassy_net::Stack<'static>, server: lluav_core::Server<impl lluav_core::Backend, impl lluav_core::Clock>) -> ! {
@@ -53,7 +55,6 @@ extern crate std;
 
 mod log;
 
-pub mod accept;
 pub mod admission;
 pub mod board;
 pub mod connection;
@@ -61,6 +62,7 @@ pub mod frame;
 pub mod handshake;
 pub mod policy;
 mod receive;
+mod send;
 mod serve;
 pub mod service;
 #[cfg(feature = "testing")]

@@ -64,41 +64,22 @@ impl Transport for TcpSocket<'_> {
         }
     }
 
-    async fn write_with<R, F>(&mut self, f: F) -> Result<R, TcpError>
+    // embassy-net's futures themselves, not wrapped in one more state
+    // machine: every connection's state holds them.
+    fn write_with<R, F>(&mut self, f: F) -> impl Future<Output = Result<R, TcpError>>
     where
         F: FnOnce(&mut [u8]) -> (usize, R),
     {
-        TcpSocket::write_with(self, f).await
+        TcpSocket::write_with(self, f)
     }
 
-    async fn flush(&mut self) -> Result<(), TcpError> {
-        TcpSocket::flush(self).await
+    fn flush(&mut self) -> impl Future<Output = Result<(), TcpError>> {
+        TcpSocket::flush(self)
     }
 
     fn send_capacity(&self) -> usize {
         TcpSocket::send_capacity(self)
     }
-}
-
-/// Writes all of `parts`, one after the other, in as many pieces as the
-/// transmit buffer's free runs need.
-pub(crate) async fn write_all<T: Transport>(io: &mut T, parts: &[&[u8]]) -> Result<(), T::Error> {
-    for part in parts {
-        let mut bytes = *part;
-        while !bytes.is_empty() {
-            let n = io
-                .write_with(|room| {
-                    let n = room.len().min(bytes.len());
-                    if let (Some(dst), Some(src)) = (room.get_mut(..n), bytes.get(..n)) {
-                        dst.copy_from_slice(src);
-                    }
-                    (n, n)
-                })
-                .await?;
-            bytes = bytes.get(n..).unwrap_or(&[]);
-        }
-    }
-    Ok(())
 }
 
 /// Waits until the transmit buffer offers `len` contiguous bytes: at once
