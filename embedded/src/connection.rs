@@ -143,7 +143,8 @@ impl<'b> Connection<'b> {
         }
         let verdict = loop {
             let reader = &mut self.reader;
-            match io.read_with(|w| reader.head(w)).await? {
+            let got = io.read_with(|w| reader.head(w)).await;
+            match transport::received(io, got)? {
                 None => return Err(Error::Rejected(Rejection::Incomplete)),
                 Some(None) => {}
                 Some(Some(Ok(_))) => break check(self.reader.request(), policy, admit),
@@ -220,7 +221,7 @@ impl<'b> Connection<'b> {
             let got = with_deadline(deadline, io.read_with(|w| reader.feed(w)))
                 .await
                 .map_err(|_| self.expired())?;
-            match got? {
+            match transport::received(io, got)? {
                 None => return Err(Error::PeerClosed),
                 Some(Event::More) => {}
                 Some(event) => return Ok(event),

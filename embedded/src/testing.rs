@@ -20,6 +20,8 @@ use crate::transport::Transport;
 pub enum PipeError {
     /// The connection wrote more than the pipe's output bound.
     OutputBound,
+    /// Every byte of the input was read: the peer has closed its side.
+    Ended,
 }
 
 /// A ring buffer with smoltcp's contiguous-window semantics.
@@ -154,7 +156,7 @@ impl Pipe {
 impl Transport for Pipe {
     type Error = PipeError;
 
-    async fn read_with<R, F>(&mut self, f: F) -> Result<Option<R>, PipeError>
+    async fn read_with<R, F>(&mut self, f: F) -> Result<R, PipeError>
     where
         F: FnOnce(&mut [u8]) -> (usize, R),
     {
@@ -162,11 +164,15 @@ impl Transport for Pipe {
         let end = (self.at + self.piece).min(self.input.len());
         self.at += self.rx.push(self.input.get(self.at..end).unwrap_or_default());
         if self.rx.len == 0 {
-            return Ok(None);
+            return Err(PipeError::Ended);
         }
         let (n, r) = f(self.rx.queued());
         self.rx.dequeue(n);
-        Ok(Some(r))
+        Ok(r)
+    }
+
+    fn peer_closed(&self) -> bool {
+        self.at == self.input.len() && self.rx.len == 0
     }
 
     async fn write_with<R, F>(&mut self, f: F) -> Result<R, PipeError>

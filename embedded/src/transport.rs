@@ -20,11 +20,16 @@ pub trait Transport {
 
     /// Waits until received bytes are buffered, then calls `f` with the
     /// longest contiguous run of them; `f` returns how many it consumed
-    /// (they leave the buffer) and a value. `Ok(None)` when the peer has
-    /// closed its side and every byte was consumed.
-    async fn read_with<R, F>(&mut self, f: F) -> Result<Option<R>, Self::Error>
+    /// (they leave the buffer) and a value. Fails when the stream failed,
+    /// and when the peer has closed its side and every byte was consumed
+    /// ([`Transport::peer_closed`] tells the two apart).
+    async fn read_with<R, F>(&mut self, f: F) -> Result<R, Self::Error>
     where
         F: FnOnce(&mut [u8]) -> (usize, R);
+
+    /// Whether the peer has closed its side of the stream: after a failed
+    /// [`Transport::read_with`], an orderly end rather than a failure.
+    fn peer_closed(&self) -> bool;
 
     /// Waits until transmit space is free, then calls `f` with the longest
     /// contiguous run of it; `f` returns how many bytes it filled (they are
@@ -44,28 +49,24 @@ pub trait Transport {
 impl Transport for TcpSocket<'_> {
     type Error = TcpError;
 
-    async fn read_with<R, F>(&mut self, f: F) -> Result<Option<R>, TcpError>
+    // embassy-net's futures themselves, not wrapped in one more state
+    // machine: every connection's state holds them.
+    fn read_with<R, F>(&mut self, f: F) -> impl Future<Output = Result<R, TcpError>>
     where
         F: FnOnce(&mut [u8]) -> (usize, R),
     {
-        match TcpSocket::read_with(self, f).await {
-            Ok(r) => Ok(Some(r)),
-            // embassy-net reports the peer's FIN like a reset; the state
-            // tells them apart.
-            Err(_)
-                if matches!(
-                    self.state(),
-                    State::CloseWait | State::LastAck | State::Closing | State::TimeWait
-                ) =>
-            {
-                Ok(None)
-            }
-            Err(e) => Err(e),
-        }
+        TcpSocket::read_with(self, f)
     }
 
-    // embassy-net's futures themselves, not wrapped in one more state
-    // machine: every connection's state holds them.
+    // embassy-net reports the peer's FIN like a reset; the state tells
+    // them apart.
+    fn peer_closed(&self) -> bool {
+        matches!(
+            self.state(),
+            State::CloseWait | State::LastAck | State::Closing | State::TimeWait
+        )
+    }
+
     fn write_with<R, F>(&mut self, f: F) -> impl Future<Output = Result<R, TcpError>>
     where
         F: FnOnce(&mut [u8]) -> (usize, R),
@@ -79,6 +80,16 @@ impl Transport for TcpSocket<'_> {
 
     fn send_capacity(&self) -> usize {
         TcpSocket::send_capacity(self)
+    }
+}
+
+/// What a [`Transport::read_with`] came to: `Ok(None)` when the peer
+/// closed its side.
+pub(crate) fn received<T: Transport, R>(io: &T, got: Result<R, T::Error>) -> Result<Option<R>, T::Error> {
+    match got {
+        Ok(r) => Ok(Some(r)),
+        Err(_) if io.peer_closed() => Ok(None),
+        Err(e) => Err(e),
     }
 }
 
