@@ -176,7 +176,8 @@ impl<'b> Connection<'b> {
         loop {
             let event = match self.next_event(io).await {
                 Err(Error::LoginTimeout) => {
-                    let _ = with_timeout(self.limits.close, self.sender.close(io, CloseCode::Policy)).await;
+                    let close = Outgoing::Close(CloseCode::Policy.code());
+                    let _ = with_timeout(self.limits.close, self.sender.send(io, close)).await;
                     return Err(Error::LoginTimeout);
                 }
                 other => other?,
@@ -189,11 +190,12 @@ impl<'b> Connection<'b> {
                 Event::Control(opcode) => with_deadline(login, self.control(io, opcode))
                     .await
                     .map_err(|_| Error::LoginTimeout)??,
-                Event::Fail(code) => Some(
-                    with_deadline(login, self.sender.close(io, code))
+                Event::Fail(code) => {
+                    with_deadline(login, self.sender.send(io, Outgoing::Close(code.code())))
                         .await
-                        .map_err(|_| Error::LoginTimeout)??,
-                ),
+                        .map_err(|_| Error::LoginTimeout)??;
+                    Some(code.code())
+                }
                 Event::Message | Event::InvalidText | Event::Oversized => {
                     let (closed, now) = with_deadline(login, self.respond(io, service, session, event))
                         .await
@@ -281,7 +283,8 @@ impl<'b> Connection<'b> {
             (Sent::ReplyThenClose(code) | Sent::Close(code), _) => code,
             (Sent::Pending(_), _) => CloseCode::InternalError,
         };
-        Ok((Some(self.sender.close(io, code).await?), now))
+        self.sender.send(io, Outgoing::Close(code.code())).await?;
+        Ok((Some(code.code()), now))
     }
 
     /// Answers a control frame; `Some(code)` when the connection is closing.

@@ -110,17 +110,6 @@ impl Sender {
             .await?;
         written.ok_or(Error::Framing)
     }
-
-    /// Sends our close frame with `code`; returns the code for the caller
-    /// to report.
-    pub(crate) async fn close<T: Transport>(
-        &mut self,
-        io: &mut T,
-        code: CloseCode,
-    ) -> Result<u16, Error<T::Error>> {
-        self.send(io, Outgoing::Close(code.code())).await?;
-        Ok(code.code())
-    }
 }
 
 /// What the connection sends in one piece, besides text replies.
