@@ -8,8 +8,9 @@
 //! `read_with` offers the contiguous part of the received bytes,
 //! `write_with` the contiguous free run of the transmit ring, which starts
 //! over at the ring's beginning when the ring is empty. The peer reads
-//! (and so acknowledges) everything sent when the connection reads, when it
-//! flushes, and when the transmit ring is full.
+//! (and so acknowledges) everything sent when the connection reads (unless
+//! it is a [`Pipe::slow_peer`]), when it flushes, and when the transmit
+//! ring is full.
 
 use std::vec::Vec;
 
@@ -113,6 +114,8 @@ pub struct Pipe {
     tx: Ring,
     output: Vec<u8>,
     max_output: usize,
+    /// Whether the peer reads what was sent whenever the connection reads.
+    eager_peer: bool,
 }
 
 impl Pipe {
@@ -129,7 +132,17 @@ impl Pipe {
             tx: Ring::new(tx),
             output: Vec::new(),
             max_output,
+            eager_peer: true,
         }
+    }
+
+    /// A peer that reads (and so acknowledges) what the connection sent
+    /// only when the connection flushes or its transmit ring is full, not
+    /// whenever the connection reads: frames pile up in the transmit ring
+    /// and its free run shrinks towards the ring's end.
+    pub fn slow_peer(mut self) -> Self {
+        self.eager_peer = false;
+        self
     }
 
     /// Everything the connection wrote, including what is still in the
@@ -160,7 +173,9 @@ impl Transport for Pipe {
     where
         F: FnOnce(&mut [u8]) -> (usize, R),
     {
-        self.acknowledge()?;
+        if self.eager_peer {
+            self.acknowledge()?;
+        }
         let end = (self.at + self.piece).min(self.input.len());
         self.at += self.rx.push(self.input.get(self.at..end).unwrap_or_default());
         if self.rx.len == 0 {

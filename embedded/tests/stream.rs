@@ -341,3 +341,44 @@ fn a_reply_longer_than_the_reply_capacity_is_refused_by_the_service() {
     let input = session(&[masked(true, op::TEXT, "n".repeat(2049).as_bytes())]);
     assert_eq!(run_with(&input, 4096, MCU).ended, Ok(1009));
 }
+
+/// embedded-websocket frames pongs and close frames into a contiguous run
+/// of the transmit ring. With a peer that reads only when the connection
+/// flushes, 125-byte pongs pile up until the ring's free run is too short
+/// for the next one: the connection waits for the peer to read, and every
+/// pong, the echo and the close frame go out whole and in order.
+#[test]
+fn largest_pongs_go_out_whole_when_the_transmit_ring_runs_short() {
+    let reply = lluav_embedded::lluav_core::MIN_RESPONSE_CAPACITY;
+    let payloads: Vec<Vec<u8>> = (0..7u8).map(|i| vec![b'a' + i; 125]).collect();
+    let mut frames: Vec<Vec<u8>> = payloads.iter().map(|p| masked(true, op::PING, p)).collect();
+    frames.push(masked(true, op::TEXT, b"after the pongs"));
+    frames.push(masked(true, op::CLOSE, &4000u16.to_be_bytes()));
+    let input = session(&frames);
+    for piece in [1, 9, 130, 4096] {
+        let mut io = Pipe::new(&input, piece, 256, reply + 4, 1 << 20).slow_peer();
+        let mut message = [0; 512];
+        let limits = Limits {
+            reply,
+            idle: None,
+            close: Duration::from_secs(1),
+        };
+        let mut conn = Connection::new(&mut message, limits);
+        let ended = block_on(async {
+            conn.accept(&mut io, &POLICY, |_| true).await?;
+            conn.run(&mut io, &Echo, &mut (), |_| {}).await
+        });
+        assert_eq!(ended, Ok(4000), "piece {piece}");
+        let output = io.output();
+        let mut rest = &output[output.windows(4).position(|w| w == b"\r\n\r\n").unwrap() + 4..];
+        let mut got = Vec::new();
+        while let Some((frame, used)) = parse_server_frame(rest) {
+            got.push((frame.opcode, frame.payload));
+            rest = &rest[used..];
+        }
+        let mut expected: Vec<(u8, Vec<u8>)> = payloads.iter().map(|p| (op::PONG, p.clone())).collect();
+        expected.push((op::TEXT, b"after the pongs".to_vec()));
+        expected.push((op::CLOSE, 4000u16.to_be_bytes().to_vec()));
+        assert_eq!(got, expected, "piece {piece}");
+    }
+}
