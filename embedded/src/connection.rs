@@ -12,10 +12,11 @@
 //! # Where the bytes go
 //!
 //! A connection owns one buffer, the message buffer (its size is the frame
-//! limit; it first holds the upgrade request's head), and about 250 bytes
+//! limit; it first holds the upgrade request's head), and about 260 bytes
 //! of state (a 14-byte carry for a frame header cut by the end of the
-//! received bytes, 125 bytes for a control frame's payload). Everything
-//! else is the socket's:
+//! received bytes, 125 bytes for a control frame's payload,
+//! embedded-websocket's 16-byte server state). Everything else is the
+//! socket's:
 //!
 //! - **In**: frame headers are parsed and payloads unmasked straight out of
 //!   the socket's receive buffer ([`Transport::read_with`]) into the message
@@ -39,7 +40,10 @@
 //!   peer has acknowledged everything, when the run is the whole buffer.
 //!   The message stays in the message buffer meanwhile, so the receive and
 //!   transmit buffers are never needed at once (embassy-net's stack can lend
-//!   only one of them at a time).
+//!   only one of them at a time). The text frame's header is ours;
+//!   the `101` answer, pongs and close frames are written by
+//!   embedded-websocket, straight into a contiguous run of the transmit
+//!   buffer too (`send.rs` says why the split, and what it never sees).
 
 use embassy_time::{Duration, Instant, with_deadline, with_timeout};
 use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY};

@@ -10,7 +10,8 @@
 //! `WebSocketServer::server_accept`), frames every pong and close frame
 //! (`write`, `close`), and its state refuses any frame after our close
 //! frame. All of that is written by it straight into the socket's
-//! transmit buffer, in the space [`transport::reserve`] made contiguous.
+//! transmit buffer, in the space [`transport::reserve`] made contiguous
+//! (so are our own refusals, `400`, `403`, `429`).
 //!
 //! It is wrapped so that none of its hazards reaches a board:
 //!
@@ -22,10 +23,14 @@
 //!   [`crate::handshake`], [`crate::policy`] and [`crate::frame`] stay in
 //!   front, and hand it only a key [`crate::handshake::parse`] accepted
 //!   (24 base64 characters) and no subprotocol (none is selected).
+//! - Its `WebSocketKey` is a 24-byte heapless string whose `From<&str>`
+//!   panics on a longer one: the key is converted with `parse`, which
+//!   fails instead ([`websocket_key`]).
 //! - `server_accept` copies its answer into its output with a slice
-//!   index, a panic if the output is short: it is called only on a run of
-//!   at least [`ANSWER_LEN`] bytes, the length of its answer (a test pins
-//!   it).
+//!   index, a panic if the output is short: it is given exactly
+//!   [`ANSWER_LEN`] bytes, the length of its answer (a test pins it). It
+//!   builds that answer in a 1 KiB string on the stack first: 1.5 KB of
+//!   stack for [`Sender::send`], during the handshake only.
 //! - It writes a 65,535-byte payload with the 64-bit length form (RFC 6455
 //!   requires the 16-bit one; Autobahn case 1.1.6): it only frames control
 //!   payloads, at most 125 bytes, so that never shows.
@@ -40,9 +45,10 @@
 //! to it (a buffer is lent either shared or mutable, and this crate has no
 //! `unsafe`), and it has no call that writes a header alone (it takes the
 //! length from the payload). Framing replies with it would take a second
-//! reply buffer for the core to write into and a copy of every reply
-//! (2 KiB of RAM on the firmware), so a text frame's 2 or 4 header bytes
-//! are written by [`frame::write_text_header`].
+//! reply buffer for the core to write into (2 KiB of RAM on the firmware,
+//! even shared by every session under the service's lock) and a copy of
+//! every reply, so a text frame's 2 or 4 header bytes are written by
+//! [`frame::write_text_header`].
 
 use embedded_websocket::{WebSocketCloseStatusCode, WebSocketKey, WebSocketSendMessageType, WebSocketServer};
 use lluav_core::{CloseCode, Outcome, Ticket};
