@@ -147,12 +147,18 @@ impl<'b> Connection<'b> {
         }
         let verdict = loop {
             let reader = &mut self.reader;
-            let got = io.read_with(|w| reader.head(w)).await;
-            match transport::received(io, got)? {
-                None => return Err(Error::Rejected(Rejection::Incomplete)),
-                Some(None) => {}
-                Some(Some(Ok(_))) => break check(self.reader.request(), policy, admit),
-                Some(Some(Err(why))) => break Err(why),
+            let mut head = None;
+            let got = transport::read(io, &mut |w| {
+                let (n, decided) = reader.head(w);
+                head = decided;
+                n
+            })
+            .await;
+            match (transport::received(io, got)?, head) {
+                (None, _) => return Err(Error::Rejected(Rejection::Incomplete)),
+                (_, None) => {}
+                (_, Some(Ok(_))) => break check(self.reader.request(), policy, admit),
+                (_, Some(Err(why))) => break Err(why),
             }
         };
         let sent = match verdict {
@@ -224,13 +230,21 @@ impl<'b> Connection<'b> {
             let idle = self.limits.idle.map_or(Instant::MAX, |d| Instant::now() + d);
             let deadline = idle.min(self.login.unwrap_or(Instant::MAX));
             let reader = &mut self.reader;
-            let got = with_deadline(deadline, io.read_with(|w| reader.feed(w)))
-                .await
-                .map_err(|_| self.expired())?;
-            match transport::received(io, got)? {
-                None => return Err(Error::PeerClosed),
-                Some(Event::More) => {}
-                Some(event) => return Ok(event),
+            let mut event = Event::More;
+            let got = with_deadline(
+                deadline,
+                transport::read(io, &mut |w| {
+                    let (n, e) = reader.feed(w);
+                    event = e;
+                    n
+                }),
+            )
+            .await
+            .map_err(|_| self.expired())?;
+            match (transport::received(io, got)?, event) {
+                (None, _) => return Err(Error::PeerClosed),
+                (_, Event::More) => {}
+                (_, event) => return Ok(event),
             }
         }
     }

@@ -172,9 +172,8 @@ impl<'a> Seen<'a> {
             }
             self.key = Some(key);
         } else if is("sec-websocket-protocol")
-            && !value
-                .split(',')
-                .map(|p| p.trim_matches([' ', '\t']))
+            && !pieces(value, b',')
+                .map(str::trim_ascii)
                 .all(|p| !p.is_empty() && p.len() <= MAX_PROTOCOL_LEN)
         {
             return Err(Rejection::BadProtocol);
@@ -206,20 +205,24 @@ impl<'a> Seen<'a> {
 }
 
 fn request_line(line: &str) -> Result<(), Rejection> {
-    let mut parts = line.split(' ');
+    let mut parts = pieces(line, b' ');
     match (parts.next(), parts.next(), parts.next(), parts.next()) {
-        (Some("GET"), Some(target), Some("HTTP/1.1"), None) if target.starts_with('/') => Ok(()),
+        (Some("GET"), Some(target), Some("HTTP/1.1"), None) if target.as_bytes().first() == Some(&b'/') => {
+            Ok(())
+        }
         _ => Err(Rejection::BadRequestLine),
     }
 }
 
 fn header(line: &str) -> Result<(&str, &str), Rejection> {
-    let (name, value) = line.split_once(':').ok_or(Rejection::BadHeader)?;
+    let (name, value) = cut(line, b':').ok_or(Rejection::BadHeader)?;
     let token = |b: u8| b.is_ascii_alphanumeric() || b"!#$%&'*+-.^_`|~".contains(&b);
     if name.is_empty() || !name.bytes().all(token) {
         return Err(Rejection::BadHeader);
     }
-    let value = value.trim_matches([' ', '\t']);
+    // Only spaces and tabs can be ASCII whitespace here: the head is
+    // printable ASCII and tabs, and the line has lost its CRLF.
+    let value = value.trim_ascii();
     if value.len() > MAX_HEADER_VALUE {
         return Err(Rejection::HeaderTooLong);
     }
@@ -227,9 +230,25 @@ fn header(line: &str) -> Result<(&str, &str), Rejection> {
 }
 
 fn has_token(value: &str, token: &str) -> bool {
-    value
-        .split(',')
-        .any(|t| t.trim_matches([' ', '\t']).eq_ignore_ascii_case(token))
+    pieces(value, b',').any(|t| t.trim_ascii().eq_ignore_ascii_case(token))
+}
+
+/// `text` cut at the first `sep` (an ASCII byte): what comes before it and
+/// after it.
+///
+/// Byte-wise, and exact for any UTF-8 text (an ASCII byte never occurs
+/// inside a multi-byte character): `str`'s `char` searchers, which decode
+/// UTF-8, would only cost flash.
+pub(crate) fn cut(text: &str, sep: u8) -> Option<(&str, &str)> {
+    let at = text.bytes().position(|b| b == sep)?;
+    Some((text.get(..at)?, text.get(at + 1..)?))
+}
+
+/// The pieces of `text` between the `sep` bytes (see [`cut`]).
+pub(crate) fn pieces(text: &str, sep: u8) -> impl Iterator<Item = &str> {
+    text.as_bytes()
+        .split(move |&b| b == sep)
+        .map(|piece| core::str::from_utf8(piece).unwrap_or_default())
 }
 
 /// 22 base64 characters and `==`, the last character carrying only the

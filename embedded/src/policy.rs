@@ -21,7 +21,7 @@
 
 use core::net::{IpAddr, Ipv4Addr, Ipv6Addr};
 
-use crate::handshake::{Rejection, Request};
+use crate::handshake::{Rejection, Request, cut, pieces};
 
 /// What the policy compares a request with.
 #[derive(Clone, Copy, Debug)]
@@ -65,9 +65,8 @@ impl Policy<'_> {
         {
             return true;
         }
-        let Some((scheme, authority)) = origin
-            .split_once(':')
-            .and_then(|(s, rest)| Some((s, rest.strip_prefix("//")?)))
+        let Some((scheme, authority)) =
+            cut(origin, b':').and_then(|(s, rest)| Some((s, rest.strip_prefix("//")?)))
         else {
             return false;
         };
@@ -93,11 +92,12 @@ impl Policy<'_> {
 /// or `None` when the port is not a number or the name is empty.
 fn split_port(authority: &str) -> Option<(&str, Option<u16>)> {
     // An IPv6 literal's colons are inside its brackets.
-    let after = match authority.find(']') {
-        Some(end) if authority.starts_with('[') => end + 1,
+    let bytes = authority.as_bytes();
+    let after = match bytes.iter().position(|&b| b == b']') {
+        Some(end) if bytes.first() == Some(&b'[') => end + 1,
         _ => 0,
     };
-    let (name, port) = match authority.get(after..)?.find(':') {
+    let (name, port) = match bytes.get(after..)?.iter().position(|&b| b == b':') {
         Some(colon) => {
             let (name, rest) = authority.split_at_checked(after + colon)?;
             (name, Some(number(rest.get(1..)?)?))
@@ -129,10 +129,10 @@ fn parse_ip(name: &str) -> Option<IpAddr> {
         return Some(IpAddr::V6(Ipv6Addr::LOCALHOST));
     }
     let mut octets = [0u8; 4];
-    let mut parts = name.split('.');
+    let mut parts = pieces(name, b'.');
     for octet in &mut octets {
         let part = parts.next()?;
-        if part.len() > 1 && part.starts_with('0') {
+        if part.len() > 1 && part.as_bytes().first() == Some(&b'0') {
             return None;
         }
         *octet = u8::try_from(number(part)?).ok()?;

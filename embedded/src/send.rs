@@ -106,15 +106,19 @@ impl Sender {
             return Err(Error::Buffers);
         }
         let ws = &mut self.ws;
-        let written = io
-            .write_with(
-                |room| match room.get_mut(..len).and_then(|out| what.write(ws, out)) {
-                    Some(n) => (n, Some(())),
-                    None => (0, None),
-                },
-            )
-            .await?;
-        written.ok_or(Error::Framing)
+        let mut written = false;
+        transport::write(
+            io,
+            &mut |room| match room.get_mut(..len).and_then(|out| what.write(ws, out)) {
+                Some(n) => {
+                    written = true;
+                    n
+                }
+                None => 0,
+            },
+        )
+        .await?;
+        if written { Ok(()) } else { Err(Error::Framing) }
     }
 }
 

@@ -247,5 +247,5 @@ impl<const N: usize> Place<'_, N> {
 
 /// Discards input until the peer closes its side.
 async fn drain(socket: &mut TcpSocket<'_>) {
-    while let Ok(1..) = socket.read_with(|bytes| (bytes.len(), bytes.len())).await {}
+    while let Ok(1..) = crate::transport::read(socket, &mut |bytes| bytes.len()).await {}
 }

@@ -134,7 +134,7 @@ async fn armed_task(mut line: ExtiInput<'static, Async>, server: &'static Shared
 
 #[embassy_executor::task]
 async fn server_task(stack: embassy_net::Stack<'static>, server: &'static Shared) -> ! {
-    lluav_embedded::serve(stack, &lluav_embedded::Config::new(), server, SLOTS.take()).await
+    lluav_embedded::serve(stack, &CONFIG, server, SLOTS.take()).await
 }
 
 #[embassy_executor::main]
@@ -208,6 +208,9 @@ async fn main(spawner: Spawner) {
     }
     spawner.spawn(unwrap!(server_task(stack, server)));
 }
+
+/// The adapter's settings: in flash, not built at run time.
+const CONFIG: lluav_embedded::Config = lluav_embedded::Config::new();
 
 /// 400 MHz from the internal oscillator; the Ethernet MAC runs from AHB.
 fn clocks() -> Config {
