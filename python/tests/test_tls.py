@@ -1,9 +1,8 @@
-"""wss:// with a CA file, against a TLS WebSocket server on loopback whose
-certificate is self-signed (made with the openssl command line tool).
-
-lluavd itself has no TLS yet in this branch; the server here answers like
-one (see fakeserver.py), so what is tested is the client's side: the TLS
-context, the CA file, hostname checking, and refusing an untrusted server.
+"""wss:// with a CA file: against the real lluavd serving TLS
+(`--tls-cert/--tls-key`), and against a TLS WebSocket server on loopback
+(fakeserver.py) for the client's side alone: the TLS context, the CA file,
+hostname checking, and refusing an untrusted server. Certificates are
+self-signed, made with the openssl command line tool.
 """
 
 from __future__ import annotations
@@ -37,6 +36,9 @@ def self_signed(directory: Path) -> tuple[Path, Path]:
             "/CN=localhost",
             "-addext",
             "subjectAltName=DNS:localhost,IP:127.0.0.1",
+            # rustls (lluavd) refuses a CA certificate as a server's own.
+            "-addext",
+            "basicConstraints=critical,CA:FALSE",
             "-keyout",
             str(key),
             "-out",
@@ -84,3 +86,19 @@ def test_wss_without_a_trusted_certificate_is_refused(tls_server, tmp_path):
     with pytest.raises(lluav.ConnectionError, match="CERTIFICATE_VERIFY_FAILED"):
         asyncio.run(lluav.AsyncClient(server.url, cafile=str(other)).connect())
     assert server.frames == []
+
+
+def test_wss_against_lluavd_serving_tls(lluavd, tmp_path):
+    cert, key = self_signed(tmp_path)
+    daemon = lluavd("--tls-cert", str(cert), "--tls-key", str(key), password="s3cret")
+    assert daemon.url.startswith("wss://127.0.0.1:")
+    with lluav.Client(daemon.url, password="s3cret", cafile=str(cert)) as c:
+        assert c.state()["state"]["armed"] is False
+
+    async def run() -> None:
+        async with lluav.AsyncClient(daemon.url, password="s3cret", cafile=str(cert)) as c:
+            assert (await c.ver())["ret"] == 0
+
+    asyncio.run(run())
+    with pytest.raises(lluav.ConnectionError, match="CERTIFICATE_VERIFY_FAILED"):
+        lluav.Client(daemon.url, password="s3cret")
