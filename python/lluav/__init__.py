@@ -39,7 +39,7 @@ _IDS = {spec.name: spec.id for spec in TABLE}
 def encode(command: str, /, *args: Any, **kwargs: Any) -> str:
     """The frame a client method sends for these arguments, validated the
     same way (``encode("set_sp_ned", 1.0, 2.0, -3.0, 0.5)`` is
-    ``"set_sp_ned 1:2:-3:0.5"``), for logging or another transport.
+    ``"set_sp_ned 1.0:2.0:-3.0:0.5"``), for logging or another transport.
 
     Raises InvalidArguments like the method, UnknownCommand for a name that
     is not in the table.

