@@ -765,12 +765,22 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
     );
 }
 
-/// lluavd's tungstenite settings (`host/src/net/listener.rs`), for the echo
-/// server and the client. tungstenite zeroes `read_buffer_size` bytes before every
-/// read, so its default of 128 KiB costs microseconds per message and would
-/// make the echo server a lower ceiling than it need be.
+/// Bytes the echo server and the client read at most per read.
+const ECHO_READ_BUFFER: usize = 16 * 1024;
+
+/// The echo server's and the client's tungstenite settings, tuned like
+/// lluavd: its message limit (`Limits::default`), replies gathered up to
+/// 64 KiB before a write, and reads of at most `ECHO_READ_BUFFER` bytes.
+/// tungstenite zeroes its read buffer before every read, so its default
+/// of 128 KiB costs microseconds per message and would make the echo server
+/// a lower ceiling than it need be.
 fn transport_config() -> WebSocketConfig {
-    lluav_host::net::listener::websocket_config(&lluav_host::net::Limits::default())
+    let limits = lluav_host::net::Limits::default();
+    WebSocketConfig::default()
+        .max_message_size(Some(limits.max_message))
+        .max_frame_size(Some(limits.max_message))
+        .read_buffer_size(ECHO_READ_BUFFER)
+        .write_buffer_size(64 * 1024)
 }
 
 /// The echo server as a child process (this binary with `--serve-echo`).

@@ -1,30 +1,33 @@
 //! One WebSocket session after its `101`: messages in, the handler's
 //! outcomes out, in order, until a close.
 //!
-//! Mapping from tungstenite to the core (DESIGN.md, "WebSocket
-//! behaviour"): a message over the limit is [`Message::Oversized`], a
-//! binary message [`Message::Binary`], and the core's close policy decides
-//! (1009, 1003). A text message whose bytes are not UTF-8 — which
-//! tungstenite reports as an error before the message exists — closes with
-//! 1007, any other protocol violation with 1002. Pings are answered by
-//! tungstenite on the next read.
+//! Framing is ours ([`super::frame`], [`super::reader`]), as the HTTP
+//! upgrade is: text is checked for UTF-8 as it arrives, so invalid text
+//! closes with 1007 at its first bad byte; a message over the limit closes
+//! with 1009 (through the core's policy, [`Message::Oversized`]) as soon
+//! as the frame header announcing it arrives; a binary message goes to the
+//! handler (the core closes with 1003); any other protocol violation closes
+//! with 1002. Pings are answered with pongs in turn with the replies.
+//!
+//! An idle session holds no buffers: the read buffer and the queue of
+//! replies are freed while it waits, and the buffer the handler writes a
+//! reply into is lent by the listener's [`Buffers`] per message.
 
-use std::future::Future;
+use std::future::{Future, poll_fn};
 use std::net::SocketAddr;
-use std::pin::Pin;
+use std::pin::{Pin, pin};
 use std::sync::Arc;
 
-use futures_util::{FutureExt, SinkExt, StreamExt};
+use futures_util::FutureExt;
 use lluav_core::{CloseCode, Message, Outcome};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{Notify, watch};
 use tokio::time::{Instant, Sleep, timeout};
-use tokio_tungstenite::WebSocketStream;
-use tokio_tungstenite::tungstenite::protocol::frame::CloseFrame;
-use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode as WsCloseCode;
-use tokio_tungstenite::tungstenite::{Error as WsError, Message as WsMessage};
 use tracing::{debug, warn};
 
+use super::buffers::Buffers;
+use super::frame::{self, Opcode};
+use super::reader::{Event as Received, Reader};
 use super::report::{Offence, Reports};
 use super::slots::Held;
 use super::{Handler, LINGER, Limits};
@@ -34,10 +37,14 @@ use super::{Handler, LINGER, Limits};
 /// requests cannot hold the shutdown open.
 const MAX_FRAMES_AFTER_SHUTDOWN: usize = 256;
 
-/// Most replies a connection queues before it flushes even if more
+/// Most replies a connection queues before it writes them even if more
 /// requests are waiting, so that a fast pipeliner still gets replies
 /// steadily.
 const MAX_UNFLUSHED: usize = 64;
+
+/// Bytes of queued replies that are written at once, waiting requests or
+/// not.
+const WRITE_BUFFER: usize = 64 * 1024;
 
 /// At shutdown, how long a connection waits for the next frame that may
 /// already be on its way before it closes.
@@ -58,10 +65,10 @@ enum End {
 }
 
 /// What the read loop saw next.
-enum Event {
-    /// A complete message, or tungstenite's verdict on one.
-    Frame(Result<WsMessage, WsError>),
-    /// The peer closed the TCP stream, or replies could not be flushed.
+enum Next {
+    /// What the frames read so far make.
+    Frame(Received),
+    /// The peer closed the TCP stream, or replies could not be written.
     Ended,
     /// Nothing arrived within the idle timeout.
     Idle,
@@ -77,8 +84,10 @@ enum Flow {
     Continue,
     /// The connection is over; nothing more to send.
     Done,
-    /// Close with this code and reason, then stop.
-    Close(WsCloseCode, &'static str),
+    /// Close with this code and reason, wait for the peer's close, stop.
+    Close(CloseCode, &'static str),
+    /// The peer sent its close: answer it with this code and stop.
+    Answer(Option<u16>),
 }
 
 /// The one timer of a session: the idle timeout, and the login deadline
@@ -93,14 +102,14 @@ struct Timer {
 
 impl Timer {
     /// What the timer firing means now, or `None` after re-arming it.
-    fn fired(&mut self, limits: &Limits) -> Option<Event> {
+    fn fired(&mut self, limits: &Limits) -> Option<Next> {
         let now = Instant::now();
         if self.login_deadline.is_some_and(|d| now >= d) {
-            return Some(Event::LoginTimeout);
+            return Some(Next::LoginTimeout);
         }
         let idle = self.last_frame + limits.idle_timeout;
         if now >= idle {
-            return Some(Event::Idle);
+            return Some(Next::Idle);
         }
         let next = self.login_deadline.map_or(idle, |d| d.min(idle));
         self.sleep.as_mut().reset(next);
@@ -108,16 +117,102 @@ impl Timer {
     }
 }
 
-/// A session: the WebSocket, the handler's per-connection state and the
-/// reply buffer.
+/// Where a session's bytes go: the stream, what was read of it, the
+/// replies not yet written.
+struct Io<S> {
+    stream: S,
+    reader: Reader,
+    /// Frames queued: a pipelining client gets its replies in one write, a
+    /// client waiting for its reply gets it before we wait.
+    outbox: Vec<u8>,
+    /// Replies and pongs in `outbox`.
+    queued: usize,
+}
+
+impl<S: AsyncRead + AsyncWrite + Unpin> Io<S> {
+    /// Reads more bytes; 0 at the end of the stream. While it waits, the
+    /// session holds no buffers.
+    async fn read(&mut self) -> std::io::Result<usize> {
+        let Io {
+            stream,
+            reader,
+            outbox,
+            ..
+        } = self;
+        poll_fn(|cx| {
+            let polled = pin!(stream.read_buf(reader.buffer())).poll(cx);
+            if polled.is_pending() {
+                reader.release();
+                if outbox.is_empty() {
+                    *outbox = Vec::new();
+                }
+            }
+            polled
+        })
+        .await
+    }
+
+    /// The next event of the frames received, reading as needed; `None`
+    /// when the stream ends.
+    async fn receive(&mut self) -> Option<Received> {
+        loop {
+            if let Some(event) = self.reader.next_event() {
+                return Some(event);
+            }
+            if !matches!(self.read().await, Ok(1..)) {
+                return None;
+            }
+        }
+    }
+
+    /// Writes the queued frames; false if the peer does not take them in
+    /// time (the connection is then dropped).
+    async fn flush(&mut self, limits: &Limits) -> bool {
+        if self.outbox.is_empty() {
+            return true;
+        }
+        self.queued = 0;
+        let Io { stream, outbox, .. } = self;
+        let written = timeout(limits.io_timeout, async {
+            stream.write_all(outbox).await?;
+            stream.flush().await
+        })
+        .await;
+        outbox.clear();
+        matches!(written, Ok(Ok(())))
+    }
+
+    /// Writes the queued frames if there are enough of them, whether or
+    /// not more requests are waiting; false if the peer does not take them.
+    async fn flush_if_full(&mut self, limits: &Limits) -> bool {
+        if self.queued >= MAX_UNFLUSHED || self.outbox.len() >= WRITE_BUFFER {
+            return self.flush(limits).await;
+        }
+        true
+    }
+
+    /// Ends our side of the stream and reads on briefly: a peer still
+    /// sending (the rest of an oversized message) would get a reset
+    /// instead of our last frames if the socket closed with its bytes
+    /// unread.
+    async fn linger(&mut self) {
+        let stream = &mut self.stream;
+        let _ = timeout(LINGER, async {
+            let _ = stream.shutdown().await;
+            let mut sink = vec![0u8; 4096];
+            while let Ok(1..) = stream.read(&mut sink).await {}
+        })
+        .await;
+    }
+}
+
+/// A session: the socket, the handler's per-connection state and what the
+/// connection needs to serve it.
 pub struct Connection<'h, S, H: Handler> {
-    ws: WebSocketStream<S>,
+    io: Io<S>,
     handler: &'h H,
     session: H::Session,
-    out: Vec<u8>,
-    /// Replies written but not yet flushed: a pipelining client gets them
-    /// in one write, a client waiting for its reply gets it before we wait.
-    unflushed: usize,
+    buffers: &'h Buffers,
     limits: Limits,
     peer: SocketAddr,
     slot: Option<Held>,
@@ -125,32 +220,49 @@ pub struct Connection<'h, S, H: Handler> {
     reports: &'h Reports,
 }
 
+/// What a session is served with besides its stream.
+pub struct Context<'h, H> {
+    /// The handler of every message.
+    pub handler: &'h H,
+    /// Where response buffers are borrowed from.
+    pub buffers: &'h Buffers,
+    /// Limits and timeouts.
+    pub limits: Limits,
+    /// Where misbehaving clients are reported.
+    pub reports: &'h Reports,
+}
+
 impl<'h, S, H> Connection<'h, S, H>
 where
     S: AsyncRead + AsyncWrite + Unpin,
     H: Handler,
 {
-    /// A session for `peer` over `ws`, holding `slot` (if it was counted).
+    /// A session for `peer` over `stream` (after its `101`; `leftover`:
+    /// what arrived after the request head), holding `slot` (if it was
+    /// counted).
     pub fn new(
-        ws: WebSocketStream<S>,
-        handler: &'h H,
+        stream: S,
+        leftover: Vec<u8>,
         peer: SocketAddr,
-        limits: Limits,
         slot: Option<Held>,
-        reports: &'h Reports,
+        cx: Context<'h, H>,
     ) -> Self {
-        let session = handler.session(peer);
+        let session = cx.handler.session(peer);
         Connection {
-            ws,
-            handler,
+            io: Io {
+                stream,
+                reader: Reader::new(leftover, cx.limits.max_message),
+                outbox: Vec::new(),
+                queued: 0,
+            },
+            handler: cx.handler,
             session,
-            out: vec![0u8; limits.response_capacity],
-            unflushed: 0,
-            limits,
+            buffers: cx.buffers,
+            limits: cx.limits,
             peer,
             slot,
             admitted: false,
-            reports,
+            reports: cx.reports,
         }
     }
 
@@ -180,34 +292,27 @@ where
         };
         debug!(peer = %self.peer, "connected");
         loop {
-            let event = self.next_event(ended.as_mut(), &mut timer).await;
-            let flow = match event {
-                Event::Frame(frame) => {
+            let flow = match self.next(ended.as_mut(), &mut timer).await {
+                Next::Frame(event) => {
                     timer.last_frame = Instant::now();
-                    let flow = self.frame(frame).await;
+                    let flow = self.event(event).await;
                     if self.check_admitted() {
                         timer.login_deadline = None;
                     }
                     flow
                 }
-                Event::Ended => Flow::Done,
-                Event::Idle => Flow::Close(WsCloseCode::Normal, "idle timeout"),
-                Event::LoginTimeout => {
+                Next::Ended => Flow::Done,
+                Next::Idle => Flow::Close(CloseCode::Normal, "idle timeout"),
+                Next::LoginTimeout => {
                     self.reports.note(self.peer.ip(), Offence::LoginTimeout);
-                    Flow::Close(WsCloseCode::Policy, "no login in time")
+                    Flow::Close(CloseCode::Policy, "no login in time")
                 }
-                Event::End(End::Reclaimed) => {
-                    Flow::Close(WsCloseCode::Policy, "not logged in; slot reclaimed")
-                }
-                Event::End(End::Shutdown) => self.drain().await,
+                Next::End(End::Reclaimed) => Flow::Close(CloseCode::Policy, "not logged in; slot reclaimed"),
+                Next::End(End::Shutdown) => self.drain().await,
             };
-            match flow {
-                Flow::Continue => {}
-                Flow::Done => break,
-                Flow::Close(code, reason) => {
-                    self.close(code, reason).await;
-                    break;
-                }
+            if !matches!(flow, Flow::Continue) {
+                self.finish(flow).await;
+                break;
             }
         }
         debug!(peer = %self.peer, "disconnected");
@@ -228,99 +333,101 @@ where
         true
     }
 
-    async fn next_event(
-        &mut self,
-        mut ended: Pin<&mut impl Future<Output = End>>,
-        timer: &mut Timer,
-    ) -> Event {
-        if self.unflushed > 0 && self.unflushed < MAX_UNFLUSHED {
-            match self.ws.next().now_or_never() {
-                Some(Some(frame)) => return Event::Frame(frame),
-                Some(None) => return Event::Ended,
-                None => {}
-            }
-        }
-        if !self.flush().await {
-            return Event::Ended;
-        }
+    /// The next thing to act on. Frames already read come first, with no
+    /// system call; replies are written once no request is waiting.
+    async fn next(&mut self, mut ended: Pin<&mut impl Future<Output = End>>, timer: &mut Timer) -> Next {
+        let limits = self.limits;
         loop {
+            if let Some(event) = self.io.reader.next_event() {
+                return Next::Frame(event);
+            }
+            if self.io.queued > 0 {
+                match self.io.read().now_or_never() {
+                    Some(Ok(1..)) => continue,
+                    Some(_) => return Next::Ended,
+                    None => {}
+                }
+            }
+            if !self.io.flush(&limits).await {
+                debug!(peer = %self.peer, "replies not written; dropping the connection");
+                return Next::Ended;
+            }
             tokio::select! {
                 biased;
-                end = &mut ended => return Event::End(end),
-                next = self.ws.next() => return next.map_or(Event::Ended, Event::Frame),
+                end = &mut ended => return Next::End(end),
+                read = self.io.read() => if !matches!(read, Ok(1..)) {
+                    return Next::Ended;
+                },
                 () = &mut timer.sleep => {
-                    if let Some(event) = timer.fired(&self.limits) {
-                        return event;
+                    if let Some(next) = timer.fired(&limits) {
+                        return next;
                     }
                 }
             }
         }
     }
 
-    /// Writes the replies queued so far; false if the peer does not take
-    /// them (the connection is then dropped).
-    async fn flush(&mut self) -> bool {
-        if self.unflushed == 0 {
-            return true;
+    /// Acts on one event of the frames received.
+    async fn event(&mut self, event: Received) -> Flow {
+        match event {
+            Received::Message => self.message(false).await,
+            Received::Oversized => self.message(true).await,
+            Received::InvalidText => Flow::Close(CloseCode::InvalidPayload, ""),
+            Received::Control(Opcode::Ping) => {
+                let Io { reader, outbox, .. } = &mut self.io;
+                frame::write(outbox, Opcode::Pong, reader.control());
+                self.io.queued += 1;
+                self.written().await
+            }
+            Received::Control(Opcode::Close) => peer_close(self.io.reader.control()),
+            Received::Control(_) => Flow::Continue,
+            Received::Fail(code) => {
+                debug!(peer = %self.peer, code = code.code(), "WebSocket protocol violation");
+                Flow::Close(code, "")
+            }
         }
-        self.unflushed = 0;
-        let flushed = matches!(timeout(self.limits.io_timeout, self.ws.flush()).await, Ok(Ok(())));
-        if !flushed {
-            debug!(peer = %self.peer, "replies not flushed; dropping the connection");
-        }
-        flushed
     }
 
-    /// Handles one frame: the message to the handler, its reply queued.
-    async fn frame(&mut self, frame: Result<WsMessage, WsError>) -> Flow {
-        let message = match &frame {
-            Ok(WsMessage::Text(text)) => Message::Text(text.as_bytes()),
-            Ok(WsMessage::Binary(bytes)) => Message::Binary(bytes),
-            // tungstenite queued the pong (or the close reply) and sends it
-            // on the next read; a close from the peer ends the stream after.
-            Ok(WsMessage::Ping(_) | WsMessage::Pong(_) | WsMessage::Close(_) | WsMessage::Frame(_)) => {
-                return Flow::Continue;
-            }
-            Err(WsError::Capacity(_)) => Message::Oversized,
-            Err(WsError::Utf8(_)) => return Flow::Close(ws_code(CloseCode::InvalidPayload), ""),
-            Err(WsError::Protocol(e)) => {
-                debug!(peer = %self.peer, error = %e, "WebSocket protocol violation");
-                return Flow::Close(ws_code(CloseCode::ProtocolError), "");
-            }
-            Err(e) => {
-                debug!(peer = %self.peer, error = %e, "connection lost");
-                return Flow::Done;
-            }
+    /// Hands a message (or, `oversized`, the news of one) to the handler
+    /// and queues its reply.
+    async fn message(&mut self, oversized: bool) -> Flow {
+        let mut out = self.buffers.lend();
+        let message = if oversized {
+            Message::Oversized
+        } else {
+            self.io.reader.message()
         };
-        let outcome = self
-            .handler
-            .handle(&mut self.session, message, &mut self.out)
-            .await;
-        let (reply, code) = (outcome.reply(), outcome.close_code());
+        let outcome = self.handler.handle(&mut self.session, message, &mut out).await;
         if let Outcome::Pending(ticket, _) = outcome {
             // A handler must wait for its backend; this one broke that promise.
             warn!(peer = %self.peer, ?ticket, "handler answered Pending; closing");
-            return Flow::Close(ws_code(CloseCode::InternalError), "");
+            return Flow::Close(CloseCode::InternalError, "");
         }
-        if let Some(text) = reply {
-            // Queued, not flushed: the read loop flushes once no further
-            // request is already waiting, and a close flushes first.
-            match timeout(self.limits.io_timeout, self.ws.feed(WsMessage::text(text))).await {
-                Ok(Ok(())) => self.unflushed += 1,
-                Ok(Err(e)) => {
-                    debug!(peer = %self.peer, error = %e, "reply not sent");
-                    return Flow::Done;
-                }
-                Err(_) => {
-                    debug!(peer = %self.peer, "peer does not take replies; dropping it");
-                    return Flow::Done;
-                }
-            }
+        let code = outcome.close_code();
+        if let Some(text) = outcome.reply() {
+            // Queued, not written: the read loop writes once no further
+            // request is already waiting, and a close writes first.
+            frame::write(&mut self.io.outbox, Opcode::Text, text.as_bytes());
+            self.io.queued += 1;
         }
+        drop(out);
         if code == Some(CloseCode::Policy) {
             self.reports.note(self.peer.ip(), Offence::WrongPasswords);
         }
-        code.map_or(Flow::Continue, |code| Flow::Close(ws_code(code), ""))
+        match code {
+            Some(code) => Flow::Close(code, ""),
+            None => self.written().await,
+        }
+    }
+
+    /// After queueing a frame: written now if enough are queued.
+    async fn written(&mut self) -> Flow {
+        if self.io.flush_if_full(&self.limits).await {
+            Flow::Continue
+        } else {
+            debug!(peer = %self.peer, "peer does not take replies; dropping it");
+            Flow::Done
+        }
     }
 
     /// At shutdown: answers the frames that had already arrived (their
@@ -328,51 +435,68 @@ where
     /// short wait lets the reactor report bytes already in the socket.
     async fn drain(&mut self) -> Flow {
         for _ in 0..MAX_FRAMES_AFTER_SHUTDOWN {
-            let Ok(Some(frame)) = timeout(IN_FLIGHT_WAIT, self.ws.next()).await else {
+            let Ok(Some(event)) = timeout(IN_FLIGHT_WAIT, self.io.receive()).await else {
                 break;
             };
-            match self.frame(frame).await {
+            match self.event(event).await {
                 Flow::Continue => {}
                 other => return other,
             }
         }
-        Flow::Close(WsCloseCode::Away, "lluavd is shutting down")
+        Flow::Close(CloseCode::GoingAway, "lluavd is shutting down")
     }
 
-    /// Flushes, sends a close frame and waits (bounded) for the peer's, so
-    /// the close handshake completes; what the peer sends meanwhile is
-    /// discarded.
-    async fn close(&mut self, code: WsCloseCode, reason: &'static str) {
-        // Offenders are reported (once a minute) where the offence is
-        // seen; a line per close would let a client flood the log.
-        debug!(peer = %self.peer, %code, reason, "closing");
-        let frame = CloseFrame {
-            code,
-            reason: reason.into(),
-        };
-        let ws = &mut self.ws;
-        let handshake = async {
-            if ws.close(Some(frame)).await.is_err() {
-                return;
+    /// Ends the session as `flow` says.
+    async fn finish(&mut self, flow: Flow) {
+        let limits = self.limits;
+        let io = &mut self.io;
+        match flow {
+            Flow::Continue | Flow::Done => return,
+            Flow::Close(code, reason) => {
+                // Offenders are reported (once a minute) where the offence
+                // is seen; a line per close would let a client flood the log.
+                debug!(peer = %self.peer, code = code.code(), reason, "closing");
+                let mut payload = code.code().to_be_bytes().to_vec();
+                payload.extend_from_slice(reason.as_bytes());
+                frame::write(&mut io.outbox, Opcode::Close, &payload);
+                // Replies queued before the close go first; then wait for
+                // the peer's close, skipping whatever else it sends.
+                let handshake = async {
+                    if !io.flush(&limits).await {
+                        return;
+                    }
+                    io.reader.discard();
+                    while let Some(event) = io.receive().await {
+                        if matches!(event, Received::Control(Opcode::Close) | Received::Fail(_)) {
+                            break;
+                        }
+                    }
+                };
+                let _ = timeout(CLOSE_HANDSHAKE_TIMEOUT, handshake).await;
             }
-            while let Some(Ok(_)) = ws.next().await {}
-        };
-        let _ = timeout(CLOSE_HANDSHAKE_TIMEOUT, handshake).await;
-        // A peer still sending (the rest of an oversized message) would get
-        // a reset instead of the close frame if the socket closed with its
-        // bytes unread: end our side, then read on briefly.
-        let stream = self.ws.get_mut();
-        let _ = timeout(LINGER, async {
-            let _ = stream.shutdown().await;
-            // On the heap: an array here would make every session's task
-            // this much larger for its whole life.
-            let mut sink = vec![0u8; 4096];
-            while let Ok(1..) = stream.read(&mut sink).await {}
-        })
-        .await;
+            Flow::Answer(code) => {
+                let payload = code.map(u16::to_be_bytes);
+                frame::write(&mut io.outbox, Opcode::Close, payload.as_ref().map_or(&[], |p| p));
+                let _ = timeout(CLOSE_HANDSHAKE_TIMEOUT, io.flush(&limits)).await;
+            }
+        }
+        io.linger().await;
     }
 }
 
-fn ws_code(code: CloseCode) -> WsCloseCode {
-    WsCloseCode::from(code.code())
+/// How to answer the peer's close frame with `payload` (RFC 6455, section
+/// 5.5.1): echo its code; a malformed one is answered with 1002, a reason
+/// that is not UTF-8 with 1007.
+fn peer_close(payload: &[u8]) -> Flow {
+    let [hi, lo, reason @ ..] = payload else {
+        return Flow::Answer(payload.first().map(|_| CloseCode::ProtocolError.code()));
+    };
+    let code = u16::from_be_bytes([*hi, *lo]);
+    if !matches!(code, 1000..=1003 | 1007..=1014 | 3000..=4999) {
+        return Flow::Answer(Some(CloseCode::ProtocolError.code()));
+    }
+    if std::str::from_utf8(reason).is_err() {
+        return Flow::Answer(Some(CloseCode::InvalidPayload.code()));
+    }
+    Flow::Answer(Some(code))
 }

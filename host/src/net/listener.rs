@@ -15,19 +15,14 @@ use tokio::sync::watch;
 use tokio::task::JoinSet;
 use tokio::time::{Instant, timeout, timeout_at};
 use tokio_rustls::TlsAcceptor;
-use tokio_tungstenite::WebSocketStream;
-use tokio_tungstenite::tungstenite::protocol::{Role, WebSocketConfig};
 use tracing::{debug, info, warn};
 
-use super::connection::Connection;
+use super::buffers::Buffers;
+use super::connection::{Connection, Context};
 use super::handshake::{self, HeadError, Refusal, Request};
 use super::report::{Offence, Reports};
 use super::slots::{Capacity, Full, Held, Pending, Slots};
 use super::{Handler, LINGER, Limits, Policy};
-
-/// Bytes of replies a connection gathers before writing them to the socket
-/// (it also writes whenever no further request is waiting).
-const WRITE_BUFFER: usize = 64 * 1024;
 
 /// Everything a listener serves with.
 #[derive(Clone, Default)]
@@ -59,15 +54,19 @@ struct Shared<H> {
     config: Config,
     slots: Arc<Slots>,
     reports: Reports,
+    buffers: Buffers,
 }
 
-/// tungstenite's settings for a session.
-pub fn websocket_config(limits: &Limits) -> WebSocketConfig {
-    WebSocketConfig::default()
-        .max_message_size(Some(limits.max_message))
-        .max_frame_size(Some(limits.max_message))
-        .read_buffer_size(16 * 1024)
-        .write_buffer_size(WRITE_BUFFER)
+impl<H> Shared<H> {
+    fn new(handler: Arc<H>, config: Config) -> Self {
+        Shared {
+            handler,
+            slots: Slots::new(config.capacity()),
+            buffers: Buffers::new(config.limits.response_capacity),
+            config,
+            reports: Reports::default(),
+        }
+    }
 }
 
 /// Serves connections on `listener` with `handler` until `shutdown`
@@ -81,12 +80,7 @@ pub async fn serve<H: Handler>(
     shutdown: impl Future<Output = ()>,
 ) {
     let (stop_tx, stop_rx) = watch::channel(false);
-    let shared = Arc::new(Shared {
-        handler,
-        slots: Slots::new(config.capacity()),
-        config,
-        reports: Reports::default(),
-    });
+    let shared = Arc::new(Shared::new(handler, config));
     let mut tasks = JoinSet::new();
     tokio::pin!(shutdown);
     loop {
@@ -141,12 +135,7 @@ pub async fn serve_stream<S, H>(
     H: Handler,
 {
     let deadline = Instant::now() + config.limits.handshake_timeout;
-    let shared = Shared {
-        handler,
-        slots: Slots::new(config.capacity()),
-        config,
-        reports: Reports::default(),
-    };
+    let shared = Shared::new(handler, config);
     let (pending, _) = shared.slots.begin(peer.ip());
     upgrade(stream, peer, local, pending, deadline, &shared, stop).await;
 }
@@ -280,10 +269,13 @@ async fn session<S, H>(
     S: AsyncRead + AsyncWrite + Unpin,
     H: Handler,
 {
-    let limits = shared.config.limits;
-    let config = websocket_config(&limits);
-    let ws = WebSocketStream::from_partially_read(stream, leftover, Role::Server, Some(config)).await;
-    Connection::new(ws, &*shared.handler, peer, limits, Some(slot), &shared.reports)
+    let context = Context {
+        handler: &*shared.handler,
+        buffers: &shared.buffers,
+        limits: shared.config.limits,
+        reports: &shared.reports,
+    };
+    Connection::new(stream, leftover, peer, Some(slot), context)
         .run(stop)
         .await;
 }

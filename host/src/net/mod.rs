@@ -6,7 +6,9 @@
 //!   the per-address limits ([`slots`]), shutdown;
 //! - [`handshake`]: the request head, read and judged by us (RFC 6455,
 //!   the [`policy`] on `Origin` and `Host`), answered `101` or refused;
-//! - [`connection`]: one session after its `101`, the [`Connection`];
+//! - [`connection`]: one session after its `101`, the [`Connection`]:
+//!   WebSocket frames ([`frame`]) read and assembled by a [`reader`],
+//!   replies written into [`buffers`] lent per message;
 //! - [`tls`]: `wss://` with rustls;
 //! - [`report`]: log lines about misbehaving clients, rate-limited.
 //!
@@ -15,10 +17,13 @@
 //! ([`crate::daemon::Protocol`]) and the Autobahn echo handler ([`Echo`])
 //! share this code path, so what Autobahn tests is what clients get.
 
+pub mod buffers;
 pub mod connection;
+pub mod frame;
 pub mod handshake;
 pub mod listener;
 pub mod policy;
+pub mod reader;
 pub mod report;
 pub mod slots;
 pub mod tls;
