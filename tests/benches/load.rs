@@ -765,21 +765,18 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
     );
 }
 
-/// Bytes the echo server and the client read at most per read.
-const ECHO_READ_BUFFER: usize = 16 * 1024;
-
 /// The echo server's and the client's tungstenite settings, tuned like
-/// lluavd: its message limit (`Limits::default`), replies gathered up to
-/// 64 KiB before a write, and reads of at most `ECHO_READ_BUFFER` bytes.
-/// tungstenite zeroes its read buffer before every read, so its default
-/// of 128 KiB costs microseconds per message and would make the echo server
-/// a lower ceiling than it need be.
+/// lluavd's own framing: its message limit (`Limits::default`), replies
+/// gathered up to 64 KiB before a write, and reads of at most a page
+/// (`READ_CHUNK`). tungstenite zeroes its read buffer before every read,
+/// so its default of 128 KiB costs microseconds per message and would make
+/// the echo server a lower ceiling than it need be.
 fn transport_config() -> WebSocketConfig {
     let limits = lluav_host::net::Limits::default();
     WebSocketConfig::default()
         .max_message_size(Some(limits.max_message))
         .max_frame_size(Some(limits.max_message))
-        .read_buffer_size(ECHO_READ_BUFFER)
+        .read_buffer_size(lluav_host::net::reader::READ_CHUNK)
         .write_buffer_size(64 * 1024)
 }
 

@@ -17,6 +17,7 @@ use std::future::{Future, poll_fn};
 use std::net::SocketAddr;
 use std::pin::{Pin, pin};
 use std::sync::Arc;
+use std::task::Poll;
 
 use futures_util::FutureExt;
 use lluav_core::{CloseCode, Message, Outcome};
@@ -25,11 +26,12 @@ use tokio::sync::{Notify, watch};
 use tokio::time::{Instant, Sleep, timeout};
 use tracing::{debug, warn};
 
-use super::buffers::Buffers;
+use super::buffers::{self, Buffers};
 use super::frame::{self, Opcode};
-use super::reader::{Event as Received, Reader};
+use super::reader::{Event as Received, READ_CHUNK, Reader};
 use super::report::{Offence, Reports};
 use super::slots::Held;
+use super::woken::Woken;
 use super::{Handler, LINGER, Limits};
 
 /// Frames a connection answers at shutdown if they had already arrived:
@@ -127,6 +129,9 @@ struct Io<S> {
     outbox: Vec<u8>,
     /// Replies and pongs in `outbox`.
     queued: usize,
+    /// The last read took less than it had room for: the socket had
+    /// nothing more then (tokio then knows it is not readable either).
+    drained: bool,
 }
 
 impl<S: AsyncRead + AsyncWrite + Unpin> Io<S> {
@@ -137,14 +142,21 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Io<S> {
             stream,
             reader,
             outbox,
+            drained,
             ..
         } = self;
         poll_fn(|cx| {
-            let polled = pin!(stream.read_buf(reader.buffer())).poll(cx);
-            if polled.is_pending() {
-                reader.release();
-                if outbox.is_empty() {
-                    *outbox = Vec::new();
+            let buf = reader.buffer();
+            let room = buf.capacity() - buf.len();
+            let polled = pin!(stream.read_buf(buf)).poll(cx);
+            match &polled {
+                Poll::Ready(Ok(n)) => *drained = *n < room,
+                Poll::Ready(Err(_)) => {}
+                Poll::Pending => {
+                    reader.release();
+                    if outbox.is_empty() {
+                        buffers::recycle(std::mem::take(outbox));
+                    }
                 }
             }
             polled
@@ -173,11 +185,16 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Io<S> {
         }
         self.queued = 0;
         let Io { stream, outbox, .. } = self;
-        let written = timeout(limits.io_timeout, async {
+        let mut write = pin!(async {
             stream.write_all(outbox).await?;
             stream.flush().await
-        })
-        .await;
+        });
+        // Usually the socket takes it all at once: then no timer is made
+        // (a timer reads the clock and the runtime's handle).
+        let written = match write.as_mut().now_or_never() {
+            Some(done) => Ok(done),
+            None => timeout(limits.io_timeout, write).await,
+        };
         outbox.clear();
         matches!(written, Ok(Ok(())))
     }
@@ -254,6 +271,7 @@ where
                 reader: Reader::new(leftover, cx.limits.max_message),
                 outbox: Vec::new(),
                 queued: 0,
+                drained: false,
             },
             handler: cx.handler,
             session,
@@ -274,12 +292,12 @@ where
             .slot
             .as_ref()
             .map_or_else(|| Arc::new(Notify::new()), |s| Arc::clone(&s.cancel));
-        let ended = async move {
+        let ended = Woken::new(async move {
             tokio::select! {
                 _ = stop.wait_for(|stopping| *stopping) => End::Shutdown,
                 () = cancel.notified() => End::Reclaimed,
             }
-        };
+        });
         tokio::pin!(ended);
         self.check_admitted();
         let start = Instant::now();
@@ -341,7 +359,9 @@ where
             if let Some(event) = self.io.reader.next_event() {
                 return Next::Frame(event);
             }
-            if self.io.queued > 0 {
+            // A pipelining client's next requests may be here already:
+            // their replies then go out together.
+            if self.io.queued > 0 && !self.io.drained {
                 match self.io.read().now_or_never() {
                     Some(Ok(1..)) => continue,
                     Some(_) => return Next::Ended,
@@ -369,6 +389,9 @@ where
 
     /// Acts on one event of the frames received.
     async fn event(&mut self, event: Received) -> Flow {
+        if self.io.outbox.capacity() == 0 {
+            self.io.outbox = buffers::spare(READ_CHUNK);
+        }
         match event {
             Received::Message => self.message(false).await,
             Received::Oversized => self.message(true).await,

@@ -27,6 +27,7 @@ pub mod reader;
 pub mod report;
 pub mod slots;
 pub mod tls;
+pub mod woken;
 
 use std::future::Future;
 use std::net::SocketAddr;

@@ -6,20 +6,24 @@
 //! fragmented one are moved down over the headers between them. Text is
 //! checked for UTF-8 as each piece arrives, so a message that can never be
 //! valid fails at its first bad byte, before the rest is read (RFC 6455,
-//! section 8.1: "fail fast").
+//! section 8.1: "fail fast"). The last piece is left to the handler, which
+//! checks every complete message anyway ([`Message::text`]): a message that
+//! arrives whole is checked once, not twice.
 //!
-//! The buffer is allocated only while bytes are waiting to be handled:
-//! [`Reader::release`] frees it, so an idle session holds no read buffer.
+//! The buffer is held only while bytes are waiting to be handled:
+//! [`Reader::release`] gives it back ([`buffers::recycle`]), so an idle
+//! session holds no read buffer.
 
 use std::ops::Range;
 
 use lluav_core::{CloseCode, Message};
 
+use super::buffers;
 use super::frame::{self, Header, Opcode};
 
 /// Bytes asked of the socket per read when no frame says how many are
 /// coming: a page, several of the protocol's usual requests.
-const READ_CHUNK: usize = 4096;
+pub const READ_CHUNK: usize = 4096;
 
 /// At most this many bytes are reserved at once for the rest of a long
 /// frame (a frame that announces megabytes gets them as they arrive).
@@ -28,9 +32,12 @@ const MAX_RESERVE: usize = 1 << 20;
 /// What the session must act on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Event {
-    /// A complete data message: [`Reader::message`].
+    /// A complete data message: [`Reader::message`]. A text message may
+    /// still be invalid UTF-8 at its end (its last piece is not checked
+    /// here): [`Message::text`] decides.
     Message,
-    /// The text message so far can never become valid UTF-8.
+    /// The text message so far can never become valid UTF-8 (a complete
+    /// message is not checked here: see [`Event::Message`]).
     InvalidText,
     /// The next data frame would make the message longer than the limit.
     Oversized,
@@ -141,7 +148,9 @@ impl Reader {
                 .clamp(READ_CHUNK, MAX_RESERVE),
             _ => READ_CHUNK,
         };
-        if self.buf.capacity() - self.buf.len() < want {
+        if self.buf.capacity() == 0 {
+            self.buf = buffers::spare(want);
+        } else if self.buf.capacity() - self.buf.len() < want {
             self.compact();
             self.buf.reserve(want);
         }
@@ -153,7 +162,7 @@ impl Reader {
     pub fn release(&mut self) {
         self.settle();
         if self.buf.is_empty() {
-            self.buf = Vec::new();
+            buffers::recycle(std::mem::take(&mut self.buf));
         }
     }
 
@@ -269,7 +278,11 @@ impl Reader {
         current.got += take as u64;
         let complete = current.got == header.len;
         self.frame = (!complete).then_some(current);
-        if self.kind == Some(Opcode::Text) && self.invalid_text(complete && header.fin) {
+        // A complete message is checked whole by the handler (the core's
+        // `Message::text`, the one close policy); what is checked here is
+        // the part of a message that has arrived, to fail it early.
+        let whole = complete && header.fin;
+        if self.kind == Some(Opcode::Text) && !whole && self.invalid_text() {
             return Step::Event(Event::InvalidText);
         }
         match (complete, header.fin && !self.discarding) {
@@ -282,9 +295,9 @@ impl Reader {
         }
     }
 
-    /// Checks the text added since the last check; `last`: the message is
-    /// complete, so it may not end inside a character either.
-    fn invalid_text(&mut self, last: bool) -> bool {
+    /// Whether the text so far can never become valid UTF-8; checks what
+    /// was added since the last call.
+    fn invalid_text(&mut self) -> bool {
         let new = self
             .buf
             .get(self.start + self.valid..self.start + self.len)
@@ -296,7 +309,7 @@ impl Reader {
             Err(e) if e.error_len().is_none() => self.valid += e.valid_up_to(),
             Err(_) => return true,
         }
-        last && self.valid != self.len
+        false
     }
 }
 
@@ -398,8 +411,11 @@ mod tests {
         wire.extend(frame(0x00, &smiley[1..2]));
         wire.extend(frame(0x80, &smiley[2..]));
         assert_eq!(events(&wire, 1, 100), [(Event::Message, smiley.to_vec())]);
+        // Complete, so left to the core's check, which refuses it.
         let cut = frame(0x81, &smiley[..2]);
-        assert_eq!(events(&cut, 1, 100)[0].0, Event::InvalidText);
+        let mut reader = Reader::new(cut, 100);
+        assert_eq!(reader.next_event(), Some(Event::Message));
+        assert_eq!(reader.message().text(), Err(CloseCode::InvalidPayload));
     }
 
     #[test]
