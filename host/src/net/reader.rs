@@ -133,11 +133,6 @@ impl Reader {
         self.len = 0;
     }
 
-    /// Whether bytes are waiting that a later event may need.
-    pub fn is_empty(&self) -> bool {
-        self.pos == self.buf.len() && (self.kind.is_none() || self.delivered)
-    }
-
     /// The buffer to append the socket's next bytes to, with room for
     /// them: a page, or what the frame in progress still needs.
     pub fn buffer(&mut self) -> &mut Vec<u8> {
@@ -460,6 +455,5 @@ mod tests {
         assert_eq!(reader.next_event(), None);
         reader.release();
         assert_eq!(reader.buf.capacity(), 0);
-        assert!(reader.is_empty());
     }
 }
