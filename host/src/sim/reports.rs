@@ -70,7 +70,7 @@ impl Simulator {
             .object("velocity", |o| f.vel().write(o))
             .f32("yaw", f.yaw() as f32)
             .f32("altitude", altitude(f.pos()) as f32)
-            .f64("battery", round1(f.battery()))
+            .f32("battery", battery_level(f.battery()))
             .object("setpoint", |o| {
                 sp.write(o);
                 o.f32("yaw", sp_yaw as f32);
@@ -254,4 +254,54 @@ fn guid2(seed: &str) -> String {
         out.push_str(&format!("{:02x}", (h >> 56) as u8));
     }
     out
+}
+
+/// The battery level as `state` writes it: one decimal of 0-100 % has at
+/// most four significant digits, so its `f32` prints exactly the text its
+/// `f64` would (every level, in the test below), and an `f32` costs a
+/// fraction of an `f64` to print: `state` is the command clients poll.
+fn battery_level(battery: f64) -> f32 {
+    round1(battery) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use lluav_core::{Auth, Backend, Failure, Message, Outcome, Server, Step};
+
+    use super::*;
+
+    /// Writes one level both ways.
+    struct Level(f64);
+
+    impl Backend for Level {
+        fn armed(&self) -> bool {
+            false
+        }
+
+        fn execute(&mut self, _: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
+            out.f64("f64", round1(self.0)).f32("f32", battery_level(self.0));
+            Ok(Step::Done)
+        }
+    }
+
+    #[test]
+    fn every_battery_level_prints_the_same_as_f32_as_it_did_as_f64() {
+        let levels = (0..=1000).map(|tenths| f64::from(tenths) / 10.0);
+        for level in levels.chain([-0.0, 0.04, 99.96, 33.333, 66.666]) {
+            let mut server = Server::new(Level(level), || 7, Auth::new(None).expect("no password"));
+            let mut session = server.open(None);
+            let mut out = [0u8; 256];
+            let Outcome::Reply(reply) = server.handle(&mut session, Message::Text(b"state"), &mut out) else {
+                panic!("no reply for {level}");
+            };
+            let value = |key: &str| {
+                let from = reply.find(key).map(|i| i + key.len()).expect("written");
+                let rest = reply.get(from..).unwrap_or_default();
+                rest.split([',', '}']).next().unwrap_or_default().to_owned()
+            };
+            let (as_f64, as_f32) = (value(r#""f64":"#), value(r#""f32":"#));
+            assert!(as_f64.parse::<f64>().is_ok(), "{level}: {reply}");
+            assert_eq!(as_f32, as_f64, "{level}: {reply}");
+        }
+    }
 }
