@@ -97,7 +97,7 @@ enum Flow {
 /// frame costs a timer-wheel registration per request. It is re-armed only
 /// when it fires.
 struct Timer {
-    sleep: Pin<Box<Sleep>>,
+    sleep: Woken<Sleep>,
     last_frame: Instant,
     login_deadline: Option<Instant>,
 }
@@ -114,7 +114,7 @@ impl Timer {
             return Some(Next::Idle);
         }
         let next = self.login_deadline.map_or(idle, |d| d.min(idle));
-        self.sleep.as_mut().reset(next);
+        self.sleep.inner_mut().reset(next);
         None
     }
 }
@@ -302,7 +302,7 @@ where
         self.check_admitted();
         let start = Instant::now();
         let mut timer = Timer {
-            sleep: Box::pin(tokio::time::sleep(
+            sleep: Woken::new(tokio::time::sleep(
                 self.limits.idle_timeout.min(self.limits.login_timeout),
             )),
             last_frame: start,

@@ -3,9 +3,9 @@
 //! A session waits for its socket, its timer and the news that it must
 //! end (shutdown, reclaiming) in one `select!`, which polls every branch
 //! each time the task runs: once per request. Polling tokio's `Notified`
-//! takes the `Notify`'s lock, and the end of a session is rare; wrapped in
-//! [`Woken`], it is polled once to register, then only after it woke the
-//! task.
+//! takes the `Notify`'s lock, a timer is checked against the clock, and
+//! both rarely fire; wrapped in [`Woken`], each is polled once to register,
+//! then only after it woke the task.
 
 use std::future::Future;
 use std::pin::Pin;
@@ -65,6 +65,15 @@ impl<F: Future> Future for Woken<F> {
         }
         this.registered = true;
         this.inner.as_mut().poll(&mut Context::from_waker(&this.waker))
+    }
+}
+
+impl<F> Woken<F> {
+    /// The wrapped future, to change; it is polled again on the next poll
+    /// (a timer that was reset registers its new deadline).
+    pub fn inner_mut(&mut self) -> Pin<&mut F> {
+        self.registered = false;
+        self.inner.as_mut()
     }
 }
 
