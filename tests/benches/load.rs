@@ -27,8 +27,9 @@
 //! Defaults: 100 000 commands per server, connection count and round
 //! (`--total`; M = total / C, at least 20); two rounds that alternate which
 //! server goes first, histograms merged over the rounds; 500 idle
-//! connections. The echo server and the client use lluavd's tungstenite
-//! buffer sizes (`--echo-default-buffers`: tungstenite's defaults for the
+//! connections. The echo server and the client are tuned like lluavd's own
+//! framing: its message limit, reads of at most a page, replies gathered up
+//! to 64 KiB (`--echo-default-buffers`: tungstenite's defaults for the
 //! echo server). `--lluavd-echo` adds `lluavd --echo`, lluavd's own
 //! connection code with its echo handler, which splits lluavd's cost into
 //! transport and protocol.
