@@ -60,9 +60,9 @@ thread_local! {
 }
 
 /// Runs the daemon's connection code with the echo handler: writes
-/// `request`, and once the server has answered it (as RFC 6455 requires a
-/// client to wait; tungstenite drops a client that sends frames earlier)
-/// writes `frames`, then ends the stream. Returns everything the server wrote.
+/// `request`, and once the server has answered it (RFC 6455 has a client
+/// wait for the 101 before it sends frames) writes `frames`, then ends the
+/// stream. Returns everything the server wrote.
 pub fn host(request: &[u8], frames: &[u8]) -> Vec<u8> {
     RUNTIME.with(|rt| {
         rt.borrow().block_on(async {
