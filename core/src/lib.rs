@@ -13,6 +13,8 @@
 //! - [`response`]: JSON responses in caller-provided fixed buffers;
 //! - [`Backend`] and [`Clock`]: what an adapter supplies;
 //! - [`throttle`]: password guessing limited per client address;
+//! - [`websocket`]: the WebSocket frame codec both adapters share (headers,
+//!   unmasking, UTF-8 checked as a text message arrives);
 //! - [`Server::handle`]: the one entry point an adapter calls per message.
 //!
 //! ```
@@ -57,6 +59,7 @@ pub mod server;
 pub mod session;
 pub mod table;
 pub mod throttle;
+pub mod websocket;
 
 pub use backend::{Backend, Clock, Context, Step, Ticket};
 pub use command::{Args, Command, LandPoint, MAX_HEIGHTS, MAX_WAYPOINT_IDS, Payload, Point, Pose};

@@ -46,9 +46,9 @@
 //!   buffer too (`send.rs` says why the split, and what it never sees).
 
 use embassy_time::{Duration, Instant, with_deadline, with_timeout};
+use lluav_core::websocket::{Opcode, header_len};
 use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY};
 
-use crate::frame::{self, Opcode};
 use crate::handshake::{self, Rejection, Request};
 use crate::log::debug;
 use crate::policy::Policy;
@@ -65,7 +65,7 @@ pub const MIN_MESSAGE: usize = 256;
 pub struct Limits {
     /// The reply capacity the core gets (at least
     /// [`MIN_RESPONSE_CAPACITY`]); the transport's transmit buffer must
-    /// hold this plus the frame header ([`frame::header_len`]).
+    /// hold this plus the frame header ([`header_len`]).
     pub reply: usize,
     /// Close the connection when nothing arrives for this long.
     pub idle: Option<Duration>,
@@ -141,7 +141,7 @@ impl<'b> Connection<'b> {
         let reply = self.limits.reply;
         if self.reader.capacity() < MIN_MESSAGE
             || reply < MIN_RESPONSE_CAPACITY
-            || io.send_capacity() < frame::header_len(reply) + reply
+            || io.send_capacity() < header_len(reply) + reply
         {
             return Err(Error::Buffers);
         }
@@ -270,7 +270,7 @@ impl<'b> Connection<'b> {
         let message = self.reader.message(event);
         let mut waiting = None;
         let (sent, now) = loop {
-            if !transport::reserve(io, frame::header_len(reply) + reply).await? {
+            if !transport::reserve(io, header_len(reply) + reply).await? {
                 return Err(Error::Buffers);
             }
             let mut handler = service.handler().await;

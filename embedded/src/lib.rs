@@ -13,7 +13,8 @@
 //! are read straight out of the socket's receive buffer and replies written
 //! straight into its transmit buffer ([`connection`] says how, and why the
 //! message buffer remains). The upgrade request is validated by
-//! [`handshake`] and [`policy`] (Origin and Host), frames by [`frame`],
+//! [`handshake`] and [`policy`] (Origin and Host), frames by the core's
+//! [`lluav_core::websocket`] codec (shared with lluavd),
 //! and [`admission`] decides who gets the few slots (a spare listener,
 //! eviction of half-open and not-logged-in connections, per-address
 //! limits, deadlines). embedded-websocket builds the `101` answer (its
@@ -58,7 +59,6 @@ mod log;
 pub mod admission;
 pub mod board;
 pub mod connection;
-pub mod frame;
 pub mod handshake;
 pub mod policy;
 mod receive;
@@ -68,7 +68,6 @@ pub mod service;
 #[cfg(feature = "testing")]
 pub mod testing;
 pub mod transport;
-pub mod utf8;
 
 use embassy_time::Duration;
 

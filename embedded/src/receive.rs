@@ -10,11 +10,10 @@
 //! frame's payload in 125 bytes of its own, so nothing waits for bytes it
 //! has not consumed.
 
+use lluav_core::websocket::{self, Header, MAX_CLIENT_HEADER, MAX_CONTROL_PAYLOAD, Opcode, Utf8, Verdict};
 use lluav_core::{CloseCode, Message};
 
-use crate::frame::{self, Header, MAX_CONTROL_PAYLOAD, MAX_HEADER, Opcode};
 use crate::handshake::{MAX_REQUEST_HEAD, Rejection};
-use crate::utf8::{Utf8, Verdict};
 
 /// What the connection must act on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -49,7 +48,7 @@ pub(crate) struct Reader<'b> {
     /// The opcode of the message being received, once its first frame came.
     kind: Option<Opcode>,
     utf8: Utf8,
-    carry: [u8; MAX_HEADER],
+    carry: [u8; MAX_CLIENT_HEADER],
     carried: usize,
     frame: Option<Current>,
     control: [u8; MAX_CONTROL_PAYLOAD],
@@ -71,7 +70,7 @@ impl<'b> Reader<'b> {
             len: 0,
             kind: None,
             utf8: Utf8::new(),
-            carry: [0; MAX_HEADER],
+            carry: [0; MAX_CLIENT_HEADER],
             carried: 0,
             frame: None,
             control: [0; MAX_CONTROL_PAYLOAD],
@@ -176,12 +175,12 @@ impl<'b> Reader<'b> {
     /// Parses a header from the carried bytes and `rest`.
     fn header(&mut self, rest: &[u8]) -> Result<Head, CloseCode> {
         if self.carried == 0
-            && let Some(header) = frame::parse_header(rest)?
+            && let Some(header) = websocket::parse_header(rest)?
         {
             return Ok(Head::Done(header, header.header_len));
         }
         // Too few bytes for a header (at most 13): carry them.
-        let take = (MAX_HEADER - self.carried).min(rest.len());
+        let take = (MAX_CLIENT_HEADER - self.carried).min(rest.len());
         let (Some(dst), Some(src)) = (
             self.carry.get_mut(self.carried..self.carried + take),
             rest.get(..take),
@@ -191,7 +190,7 @@ impl<'b> Reader<'b> {
         dst.copy_from_slice(src);
         let had = self.carried;
         self.carried += take;
-        match frame::parse_header(self.carry.get(..self.carried).unwrap_or(&[]))? {
+        match websocket::parse_header(self.carry.get(..self.carried).unwrap_or(&[]))? {
             Some(header) => {
                 self.carried = 0;
                 Ok(Head::Done(header, header.header_len.saturating_sub(had)))
@@ -238,7 +237,7 @@ impl<'b> Reader<'b> {
             return (0, Some(Event::Fail(CloseCode::InternalError)));
         };
         dst.copy_from_slice(src);
-        frame::unmask(dst, header.mask, offset);
+        websocket::unmask(dst, header.mask, offset);
         current.got += take as u64;
         if !control {
             self.len += take;

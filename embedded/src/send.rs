@@ -20,7 +20,7 @@
 //!   `Sec-WebSocket-Key` or `Sec-WebSocket-Protocol`: a halted board) and
 //!   its frame reader (which lets through reserved bits, unmasked client
 //!   frames and over-long or fragmented control frames) are not used:
-//!   [`crate::handshake`], [`crate::policy`] and [`crate::frame`] stay in
+//!   [`crate::handshake`], [`crate::policy`] and [`lluav_core::websocket`] stay in
 //!   front, and hand it only a key [`crate::handshake::parse`] accepted
 //!   (24 base64 characters) and no subprotocol (none is selected).
 //! - Its `WebSocketKey` is a 24-byte heapless string whose `From<&str>`
@@ -48,13 +48,13 @@
 //! reply buffer for the core to write into (2 KiB of RAM on the firmware,
 //! even shared by every session under the service's lock) and a copy of
 //! every reply, so a text frame's 2 or 4 header bytes are written by
-//! [`frame::write_text_header`].
+//! [`write_header`].
 
 use embedded_websocket::{WebSocketCloseStatusCode, WebSocketKey, WebSocketSendMessageType, WebSocketServer};
+use lluav_core::websocket::{MAX_CONTROL_PAYLOAD, Opcode, header_len, write_header};
 use lluav_core::{CloseCode, Outcome, Ticket};
 
 use crate::connection::Error;
-use crate::frame;
 use crate::handshake::{KEY_LEN, Rejection};
 use crate::transport::{self, Transport};
 
@@ -132,7 +132,7 @@ pub(crate) enum Outgoing<'a> {
     /// then on.
     Switch(&'a [u8; KEY_LEN]),
     /// A pong carrying a ping's payload (at most 125 bytes, as
-    /// [`crate::frame`] checked).
+    /// [`lluav_core::websocket`] checked).
     Pong(&'a [u8]),
     /// Our close frame with this code, starting the closing handshake.
     Close(u16),
@@ -161,7 +161,7 @@ impl Outgoing<'_> {
                 Ok(out.len())
             }
             Outgoing::Switch(key) => ws.server_accept(&websocket_key(key)?, None, out),
-            Outgoing::Pong(payload) if payload.len() <= frame::MAX_CONTROL_PAYLOAD => {
+            Outgoing::Pong(payload) if payload.len() <= MAX_CONTROL_PAYLOAD => {
                 ws.write(WebSocketSendMessageType::Pong, true, payload, out)
             }
             Outgoing::Pong(_) => return None,
@@ -185,7 +185,7 @@ pub(crate) fn write_reply(
     capacity: usize,
     handle: impl for<'o> FnOnce(&'o mut [u8]) -> Outcome<'o>,
 ) -> (usize, Sent) {
-    let reserve = frame::header_len(capacity);
+    let reserve = header_len(capacity);
     let Some(window) = room.get_mut(..reserve + capacity) else {
         return (0, Sent::Close(CloseCode::InternalError));
     };
@@ -203,14 +203,14 @@ pub(crate) fn write_reply(
         }
         _ => return (0, Sent::Close(CloseCode::InternalError)),
     };
-    let header = frame::header_len(len);
+    let header = header_len(len);
     if len > capacity {
         return (0, Sent::Close(CloseCode::InternalError));
     }
     // The header was given room for the longest reply; a shorter one
     // moves the reply up to meet it.
     window.copy_within(reserve..reserve + len, header);
-    match frame::write_text_header(window, len) {
+    match write_header(window, Opcode::Text, len) {
         Some(_) => (header + len, sent),
         None => (0, Sent::Close(CloseCode::InternalError)),
     }

@@ -8,11 +8,11 @@ use embassy_net::Stack;
 use embassy_net::tcp::{Error as TcpError, TcpSocket};
 use embassy_time::{Instant, with_timeout};
 use lluav_core::MIN_RESPONSE_CAPACITY;
+use lluav_core::websocket::header_len;
 
 use crate::Config;
 use crate::admission::{Offense, Refusal, Table};
 use crate::connection::{Connection, Error, Limits, MIN_MESSAGE};
-use crate::frame::header_len;
 use crate::handshake::Request;
 use crate::log::{debug, info, warning};
 use crate::policy::Policy;

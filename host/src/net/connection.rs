@@ -20,6 +20,7 @@ use std::sync::Arc;
 use std::task::Poll;
 
 use futures_util::FutureExt;
+use lluav_core::websocket::Opcode;
 use lluav_core::{CloseCode, Message, Outcome};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{Notify, watch};
@@ -27,7 +28,7 @@ use tokio::time::{Instant, Sleep, timeout};
 use tracing::{debug, warn};
 
 use super::buffers::{self, Buffers};
-use super::frame::{self, Opcode};
+use super::frame;
 use super::reader::{Event as Received, READ_CHUNK, Reader};
 use super::report::{Offence, Reports};
 use super::slots::Held;

@@ -7,7 +7,8 @@
 //! - [`handshake`]: the request head, read and judged by us (RFC 6455,
 //!   the [`policy`] on `Origin` and `Host`), answered `101` or refused;
 //! - [`connection`]: one session after its `101`, the [`Connection`]:
-//!   WebSocket frames ([`frame`]) read and assembled by a [`reader`],
+//!   WebSocket frames (the core's [`lluav_core::websocket`] codec) read
+//!   and assembled by a [`reader`], written by [`frame`],
 //!   replies written into [`buffers`] lent per message;
 //! - [`tls`]: `wss://` with rustls;
 //! - [`report`]: log lines about misbehaving clients, rate-limited.

@@ -19,7 +19,7 @@ use std::ops::Range;
 use lluav_core::{CloseCode, Message};
 
 use super::buffers;
-use super::frame::{self, Header, Opcode};
+use lluav_core::websocket::{self, Header, Opcode, Utf8, Verdict};
 
 /// Bytes asked of the socket per read when no frame says how many are
 /// coming: a page, several of the protocol's usual requests.
@@ -79,8 +79,8 @@ pub struct Reader {
     frame: Option<Current>,
     /// The opcode of the message being received, once its first frame came.
     kind: Option<Opcode>,
-    /// `message[..valid]` is valid UTF-8 ending on a character boundary.
-    valid: usize,
+    /// How far the text message so far is known to be valid.
+    utf8: Utf8,
     control: Range<usize>,
     /// The last event handed out the message; forget it on the next call.
     delivered: bool,
@@ -100,7 +100,7 @@ impl Reader {
             limit,
             frame: None,
             kind: None,
-            valid: 0,
+            utf8: Utf8::new(),
             control: 0..0,
             delivered: false,
             discarding: false,
@@ -209,7 +209,7 @@ impl Reader {
     /// Parses the header at `pos` and starts its frame.
     fn header(&mut self) -> Step {
         let rest = self.buf.get(self.pos..).unwrap_or_default();
-        let header = match frame::parse_header(rest) {
+        let header = match websocket::parse_header(rest) {
             Ok(Some(header)) => header,
             Ok(None) => return Step::More,
             Err(code) => return Step::Event(Event::Fail(code)),
@@ -227,7 +227,7 @@ impl Reader {
                     self.kind = Some(opcode);
                     self.start = self.pos + header.header_len;
                     self.len = 0;
-                    self.valid = 0;
+                    self.utf8 = Utf8::new();
                 }
             }
             if header.len > (self.limit - self.len) as u64 {
@@ -247,7 +247,7 @@ impl Reader {
         let Some(payload) = self.buf.get_mut(from..to) else {
             return Step::More;
         };
-        frame::unmask(payload, header.mask, 0);
+        websocket::unmask(payload, header.mask, 0);
         self.control = from..to;
         self.pos = to;
         Step::Event(Event::Control(header.opcode))
@@ -261,7 +261,7 @@ impl Reader {
         let from = self.pos;
         if !self.discarding {
             if let Some(piece) = self.buf.get_mut(from..from + take) {
-                frame::unmask(piece, header.mask, (current.got % 4) as usize);
+                websocket::unmask(piece, header.mask, (current.got % 4) as usize);
             }
             let to = self.start + self.len;
             if to != from {
@@ -293,18 +293,11 @@ impl Reader {
     /// Whether the text so far can never become valid UTF-8; checks what
     /// was added since the last call.
     fn invalid_text(&mut self) -> bool {
-        let new = self
+        let text = self
             .buf
-            .get(self.start + self.valid..self.start + self.len)
+            .get(self.start..self.start + self.len)
             .unwrap_or_default();
-        match std::str::from_utf8(new) {
-            Ok(_) => self.valid = self.len,
-            // `error_len` is `None` when the bytes end inside a character
-            // that more bytes may complete.
-            Err(e) if e.error_len().is_none() => self.valid += e.valid_up_to(),
-            Err(_) => return true,
-        }
-        false
+        self.utf8.extend(text) == Verdict::Invalid
     }
 }
 

@@ -1,0 +1,146 @@
+//! The WebSocket frame codec both adapters share: client headers checked
+//! against RFC 6455, unmasking in pieces, server headers in the minimal
+//! length form, and UTF-8 checked as a text message arrives.
+
+use lluav_core::CloseCode;
+use lluav_core::websocket::{Opcode, Utf8, Verdict, parse_header, unmask, write_header};
+
+#[test]
+fn a_header_cut_short_waits_for_more_bytes() {
+    assert_eq!(parse_header(&[]), Ok(None));
+    assert_eq!(parse_header(&[0x81]), Ok(None));
+    assert_eq!(parse_header(&[0x81, 0xfe, 0x01]), Ok(None));
+    assert_eq!(parse_header(&[0x81, 0xff, 0, 0, 0, 0, 0, 0, 1]), Ok(None));
+    assert_eq!(parse_header(&[0x81, 0x85, 1, 2, 3]), Ok(None));
+}
+
+#[test]
+fn sixteen_and_sixty_four_bit_lengths_are_read() {
+    let h = parse_header(&[0x81, 0xfe, 0x01, 0x00, 1, 2, 3, 4]);
+    let h = h.ok().flatten().expect("a whole header");
+    assert_eq!((h.len, h.header_len, h.mask), (256, 8, [1, 2, 3, 4]));
+    let h = parse_header(&[0x02, 0xff, 0, 0, 0, 1, 0, 0, 0, 0, 9, 9, 9, 9]);
+    let h = h.ok().flatten().expect("a whole header");
+    assert_eq!(
+        (h.len, h.header_len, h.fin, h.opcode),
+        (1 << 32, 14, false, Opcode::Binary)
+    );
+}
+
+#[test]
+fn every_opcode_reads_back_from_its_bits() {
+    for opcode in [
+        Opcode::Continuation,
+        Opcode::Text,
+        Opcode::Binary,
+        Opcode::Close,
+        Opcode::Ping,
+        Opcode::Pong,
+    ] {
+        let h = parse_header(&[0x80 | opcode.bits(), 0x80, 0, 0, 0, 0]);
+        assert_eq!(h.ok().flatten().map(|h| h.opcode), Some(opcode));
+    }
+}
+
+#[test]
+fn frames_the_rfc_forbids_fail_with_1002() {
+    let bad: [&[u8]; 7] = [
+        &[0xc1, 0x80, 0, 0, 0, 0],                   // RSV1 without an extension
+        &[0x83, 0x80, 0, 0, 0, 0],                   // reserved data opcode
+        &[0x8b, 0x80, 0, 0, 0, 0],                   // reserved control opcode
+        &[0x81, 0x00],                               // unmasked client frame
+        &[0x09, 0x80, 0, 0, 0, 0],                   // fragmented ping
+        &[0x89, 0xfe, 0, 126, 0, 0, 0, 0],           // ping over 125 bytes
+        &[0x81, 0xff, 0x80, 0, 0, 0, 0, 0, 0, 0, 0], // 64-bit length, top bit set
+    ];
+    for frame in bad {
+        assert_eq!(parse_header(frame), Err(CloseCode::ProtocolError), "{frame:?}");
+    }
+}
+
+#[test]
+fn server_headers_use_the_minimal_length_form() {
+    let header = |opcode, len| {
+        let mut out = [0u8; 10];
+        let n = write_header(&mut out, opcode, len).expect("room for any header");
+        out[..n].to_vec()
+    };
+    assert_eq!(header(Opcode::Text, 125), [0x81, 125]);
+    assert_eq!(header(Opcode::Text, 126), [0x81, 126, 0, 126]);
+    // 65535 still fits the 16-bit form (Autobahn case 1.1.6).
+    assert_eq!(header(Opcode::Text, 0xffff), [0x81, 126, 0xff, 0xff]);
+    assert_eq!(header(Opcode::Text, 0x10000), [0x81, 127, 0, 0, 0, 0, 0, 1, 0, 0]);
+    assert_eq!(header(Opcode::Pong, 2), [0x8a, 2]);
+    assert_eq!(header(Opcode::Close, 0), [0x88, 0]);
+    assert_eq!(write_header(&mut [0u8; 3], Opcode::Text, 126), None);
+}
+
+#[test]
+fn unmasking_in_pieces_of_any_size_equals_unmasking_at_once() {
+    let mask = [0x37, 0xfa, 0x21, 0x3d];
+    let clear: Vec<u8> = (0..=255u8).cycle().take(300).collect();
+    let masked: Vec<u8> = clear
+        .iter()
+        .zip(mask.iter().cycle())
+        .map(|(b, k)| b ^ k)
+        .collect();
+    for piece in [1, 2, 3, 7, 8, 13, 64, 300] {
+        let mut wire = masked.clone();
+        let mut at = 0;
+        for chunk in wire.chunks_mut(piece) {
+            unmask(chunk, mask, at);
+            at += chunk.len();
+        }
+        assert_eq!(wire, clear, "pieces of {piece}");
+    }
+}
+
+/// Feeds `pieces` one after the other; the verdict after the last one fed
+/// and whether the message ends on a character boundary.
+fn feed(pieces: &[&[u8]]) -> (Verdict, bool) {
+    let mut message = Vec::new();
+    let mut utf8 = Utf8::new();
+    let mut verdict = Verdict::Open;
+    for piece in pieces {
+        message.extend_from_slice(piece);
+        verdict = utf8.extend(&message);
+        if verdict == Verdict::Invalid {
+            break;
+        }
+    }
+    (verdict, utf8.complete(message.len()))
+}
+
+#[test]
+fn a_character_split_between_pieces_is_valid() {
+    let smiley = "\u{263A}".as_bytes();
+    assert_eq!(
+        feed(&[b"a", &smiley[..1], &smiley[1..2], &smiley[2..]]),
+        (Verdict::Open, true)
+    );
+}
+
+#[test]
+fn a_message_ending_inside_a_character_is_incomplete() {
+    assert_eq!(
+        feed(&[b"ab", &"\u{263A}".as_bytes()[..2]]),
+        (Verdict::Open, false)
+    );
+}
+
+#[test]
+fn an_invalid_byte_fails_before_the_message_ends() {
+    assert_eq!(feed(&[b"valid", b"\xff", b"never read"]).0, Verdict::Invalid);
+}
+
+#[test]
+fn a_code_point_above_the_unicode_range_fails_at_its_second_byte() {
+    // 0xF4 0x90 would start U+110000: invalid as soon as 0x90 arrives.
+    assert_eq!(feed(&[b"\xf4", b"\x90"]).0, Verdict::Invalid);
+}
+
+#[test]
+fn surrogates_and_overlong_forms_fail() {
+    assert_eq!(feed(&[b"\xed\xa0\x80"]).0, Verdict::Invalid);
+    assert_eq!(feed(&[b"\xc0\xaf"]).0, Verdict::Invalid);
+}
