@@ -15,7 +15,7 @@
 //! divisibility, exactly, so a value at an end of its interval is inside
 //! it exactly when the parser would round it to this float.
 
-use super::pow10;
+use super::{POW10_U32, pow10};
 
 /// The longest text [`format_f32`] writes: a sign, `0.`, five zeros and
 /// nine digits (`-0.0000123456789`).
@@ -242,22 +242,8 @@ fn strip_zeros(mut digits: u32, mut exp: i32) -> (u32, i32) {
     (digits, exp)
 }
 
-/// 10^0 to 10^9.
-const POW10: [u32; 10] = [
-    1,
-    10,
-    100,
-    1_000,
-    10_000,
-    100_000,
-    1_000_000,
-    10_000_000,
-    100_000_000,
-    1_000_000_000,
-];
-
 fn pow10(n: usize) -> u32 {
-    POW10.get(n).copied().unwrap_or(1)
+    POW10_U32.get(n).copied().unwrap_or(1)
 }
 
 /// Ryu's layout of `digits · 10^exp` (digits < 10^9) at the start of

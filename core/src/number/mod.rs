@@ -133,26 +133,28 @@ fn put8(out: &mut [u8], at: usize, bytes: [u8; 8]) {
     }
 }
 
+/// 10^0 to 10^9: every power of ten a `u32` holds.
+pub(crate) const POW10_U32: [u32; 10] = [
+    1,
+    10,
+    100,
+    1_000,
+    10_000,
+    100_000,
+    1_000_000,
+    10_000_000,
+    100_000_000,
+    1_000_000_000,
+];
+
 /// How many decimal digits `v` has (one for zero).
 pub(crate) fn digit_count(v: u32) -> usize {
     // ⌊log10 2^bits⌋, or one more.
-    const POW10: [u32; 10] = [
-        1,
-        10,
-        100,
-        1_000,
-        10_000,
-        100_000,
-        1_000_000,
-        10_000_000,
-        100_000_000,
-        1_000_000_000,
-    ];
     // Zero has one digit; setting the lowest bit never reaches a power of ten.
     let v = v | 1;
     let bits = 32 - v.leading_zeros();
     let t = ((bits * 1_233) >> 12) as usize;
-    t + usize::from(POW10.get(t).is_some_and(|&p| v >= p))
+    t + usize::from(POW10_U32.get(t).is_some_and(|&p| v >= p))
 }
 
 /// `v / 10^8` by multiplication (a 32-bit core has no 64-bit division):

@@ -98,7 +98,39 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
             Args::Pose(Pose { x, y, z, yaw })
         }
         Grammar::Zyhk => zyhk(a)?,
-        Grammar::SetParam | Grammar::Mission | Grammar::MwExec | Grammar::Ai1Mission => keyed(grammar, a)?,
+        Grammar::SetParam => {
+            let (name, value) = fields::split_first(a, ':')?;
+            Args::SetParam {
+                name: rules::param_name(name)?,
+                value: rules::text(value)?,
+            }
+        }
+        Grammar::Mission => {
+            let (ext_id, payload) = fields::split_first(a, ':')?;
+            let payload = if payload.starts_with(['{', '[']) {
+                Payload::Json(rules::json(payload)?)
+            } else {
+                Payload::Path(rules::path(payload)?)
+            };
+            Args::Mission {
+                ext_id: fields::uint(ext_id)?,
+                payload,
+            }
+        }
+        Grammar::MwExec => {
+            let (ext_id, ids) = fields::split_first(a, ':')?;
+            Args::MwExec {
+                ext_id: fields::uint(ext_id)?,
+                wp_ids: fields::list(ids, ',', fields::uint)?,
+            }
+        }
+        Grammar::Ai1Mission => {
+            let (task_id, file) = fields::split_first(a, ':')?;
+            Args::Ai1Mission {
+                task_id: rules::task_id(task_id)?,
+                file: rules::path(file)?,
+            }
+        }
     })
 }
 
@@ -119,32 +151,5 @@ fn zyhk(a: &str) -> Result<Args<'_>, ArgError> {
     Ok(Args::Zyhk {
         heights: fields::list(heights, ',', fields::float)?,
         land,
-    })
-}
-
-/// The grammars written `key:rest`, split at the first colon.
-fn keyed(grammar: Grammar, a: &str) -> Result<Args<'_>, ArgError> {
-    let (key, rest) = fields::split_first(a, ':')?;
-    Ok(match grammar {
-        Grammar::SetParam => Args::SetParam {
-            name: rules::param_name(key)?,
-            value: rules::text(rest)?,
-        },
-        Grammar::Mission => Args::Mission {
-            ext_id: fields::uint(key)?,
-            payload: if rest.starts_with(['{', '[']) {
-                Payload::Json(rules::json(rest)?)
-            } else {
-                Payload::Path(rules::path(rest)?)
-            },
-        },
-        Grammar::MwExec => Args::MwExec {
-            ext_id: fields::uint(key)?,
-            wp_ids: fields::list(rest, ',', fields::uint)?,
-        },
-        _ => Args::Ai1Mission {
-            task_id: rules::task_id(key)?,
-            file: rules::path(rest)?,
-        },
     })
 }
