@@ -32,48 +32,29 @@ struct Asset {
     body: &'static [u8],
 }
 
+/// An asset of `host/console/`, served at `/` followed by its file name.
+macro_rules! asset {
+    ($file:literal, $content_type:expr) => {
+        Asset {
+            path: concat!("/", $file),
+            content_type: $content_type,
+            body: include_bytes!(concat!("../console/", $file)),
+        }
+    };
+}
+
+const JAVASCRIPT: &str = "text/javascript; charset=utf-8";
+
 /// The page and its assets. `/` serves the first.
 const ASSETS: &[Asset] = &[
-    Asset {
-        path: "/index.html",
-        content_type: "text/html; charset=utf-8",
-        body: include_bytes!("../console/index.html"),
-    },
-    Asset {
-        path: "/console.css",
-        content_type: "text/css; charset=utf-8",
-        body: include_bytes!("../console/console.css"),
-    },
-    Asset {
-        path: "/main.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_bytes!("../console/main.js"),
-    },
-    Asset {
-        path: "/protocol.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_bytes!("../console/protocol.js"),
-    },
-    Asset {
-        path: "/vehicle.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_bytes!("../console/vehicle.js"),
-    },
-    Asset {
-        path: "/plot.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_bytes!("../console/plot.js"),
-    },
-    Asset {
-        path: "/panels.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_bytes!("../console/panels.js"),
-    },
-    Asset {
-        path: "/favicon.svg",
-        content_type: "image/svg+xml",
-        body: include_bytes!("../console/favicon.svg"),
-    },
+    asset!("index.html", "text/html; charset=utf-8"),
+    asset!("console.css", "text/css; charset=utf-8"),
+    asset!("main.js", JAVASCRIPT),
+    asset!("protocol.js", JAVASCRIPT),
+    asset!("vehicle.js", JAVASCRIPT),
+    asset!("plot.js", JAVASCRIPT),
+    asset!("panels.js", JAVASCRIPT),
+    asset!("favicon.svg", "image/svg+xml"),
 ];
 
 /// The methods that exist, as the `Allow` header lists them.
