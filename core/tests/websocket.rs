@@ -95,6 +95,17 @@ fn unmasking_in_pieces_of_any_size_equals_unmasking_at_once() {
     }
 }
 
+#[test]
+fn the_rfc_s_masked_hello_unmasks_across_pieces() {
+    // RFC 6455, section 5.7: "Hello", masked with 37 fa 21 3d.
+    let mask = [0x37, 0xfa, 0x21, 0x3d];
+    let mut wire = *b"\x7f\x9f\x4d\x51\x58";
+    let (a, b) = wire.split_at_mut(2);
+    unmask(a, mask, 0);
+    unmask(b, mask, 2);
+    assert_eq!(&wire, b"Hello");
+}
+
 /// Feeds `pieces` one after the other; the verdict after the last one fed
 /// and whether the message ends on a character boundary.
 fn feed(pieces: &[&[u8]]) -> (Verdict, bool) {

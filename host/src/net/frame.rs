@@ -6,6 +6,7 @@ use lluav_core::websocket::{MAX_SERVER_HEADER, Opcode, write_header};
 
 /// Appends a final (FIN), unmasked server frame with `payload` to `out`.
 pub fn write(out: &mut Vec<u8>, opcode: Opcode, payload: &[u8]) {
+    // The longest server header fits `header`, so nothing is ever cut.
     let mut header = [0; MAX_SERVER_HEADER];
     let n = write_header(&mut header, opcode, payload.len()).unwrap_or(0);
     out.reserve(n + payload.len());

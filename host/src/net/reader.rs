@@ -16,10 +16,10 @@
 
 use std::ops::Range;
 
+use lluav_core::websocket::{self, Header, Opcode, Utf8, Verdict};
 use lluav_core::{CloseCode, Message};
 
 use super::buffers;
-use lluav_core::websocket::{self, Header, Opcode, Utf8, Verdict};
 
 /// Bytes asked of the socket per read when no frame says how many are
 /// coming: a page, several of the protocol's usual requests.
