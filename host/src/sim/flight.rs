@@ -42,8 +42,8 @@ pub(crate) enum Mode {
     Hover,
     /// Flying a route of waypoints (`mw_exec`, `zyhk`).
     Mission(Route),
-    /// Descending at `rate` m/s.
-    Landing { rate: f64 },
+    /// Descending at `rate` m/s to the ground point `spot` (z 0).
+    Landing { rate: f64, spot: Ned },
     /// Returning home along a route.
     Rtl(Route),
     /// Asleep: low power, no takeoff until `wakeup`.
@@ -286,10 +286,18 @@ impl Flight {
     /// Descends where it is and disarms on the ground; already landing is
     /// fine.
     pub(crate) fn land(&mut self, lim: &Limits) -> SimResult {
+        self.land_on(lim, self.pos)
+    }
+
+    /// Descends to the ground below `over` (a route's end: the vehicle
+    /// was accepted within `accept_radius` of it, and lands on it, as an
+    /// autopilot's RTL lands at home rather than where it got close).
+    fn land_on(&mut self, lim: &Limits, over: Ned) -> SimResult {
         self.require_airborne()?;
         if !matches!(self.mode, Mode::Landing { .. }) {
             let rate = lim.land.max(self.pos.up() / LAND_BUDGET_S);
-            self.enter(Mode::Landing { rate });
+            let spot = Ned::new(over.x, over.y, 0.0);
+            self.enter(Mode::Landing { rate, spot });
         }
         Ok(())
     }
@@ -412,7 +420,7 @@ impl Flight {
             Mode::Takeoff => self.climb(dt, lim),
             Mode::Hover => self.move_towards(dt, lim, lim.climb),
             Mode::Mission(_) | Mode::Rtl(_) => self.follow_route(dt, lim),
-            &mut Mode::Landing { rate } => self.descend(dt, lim, rate),
+            &mut Mode::Landing { rate, spot } => self.descend(dt, lim, rate, spot),
         }
         if self.mode.armed() {
             self.totals.armed_s += dt;
@@ -444,8 +452,8 @@ impl Flight {
         }
     }
 
-    fn descend(&mut self, dt: f64, lim: &Limits, rate: f64) {
-        self.sp = Ned::new(self.pos.x, self.pos.y, 0.0);
+    fn descend(&mut self, dt: f64, lim: &Limits, rate: f64, spot: Ned) {
+        self.sp = spot;
         self.move_towards(dt, lim, rate);
         if self.pos.z >= -1e-6 {
             self.pos.z = 0.0;
@@ -478,7 +486,7 @@ impl Flight {
             return;
         };
         let Some(leg) = leg else {
-            self.finish_route(lim);
+            self.finish_route(lim, self.pos);
             return;
         };
         self.sp = leg.target;
@@ -499,13 +507,19 @@ impl Flight {
         }
         route.held_s = 0.0;
         route.legs.pop_front();
+        let last = route.legs.is_empty();
         if let Some(wp) = leg.wp {
             self.events.push(RouteEvent::Reached { route: route.id, wp });
             self.trail.push(leg.target);
         }
+        if last {
+            self.finish_route(lim, leg.target);
+        }
     }
 
-    fn finish_route(&mut self, lim: &Limits) {
+    /// Ends the route whose last target was `end`: hovers where it is, or
+    /// lands on `end`.
+    fn finish_route(&mut self, lim: &Limits, end: Ned) {
         let Some(route) = std::mem::replace(&mut self.mode, Mode::Hover).route().cloned() else {
             return;
         };
@@ -513,7 +527,7 @@ impl Flight {
         self.sp = self.pos;
         if route.then == Then::Land {
             // Hovering now, so landing cannot be refused.
-            let _ = self.land(lim);
+            let _ = self.land_on(lim, end);
         }
     }
 
