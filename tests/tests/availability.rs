@@ -1,4 +1,4 @@
-//! Hostile clients cannot lock the operator out (issue 14): while a swarm
+//! Hostile clients cannot lock the operator out: while a swarm
 //! of half-open upgrades, a swarm of sessions that never log in, or a
 //! flood from one address is running, a legitimate client connects, logs
 //! in and sends `land`, and is served every time. Plus the limits'

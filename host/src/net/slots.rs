@@ -1,6 +1,5 @@
 //! Who holds what: pending handshakes and sessions, in all and per client
-//! address, so that no client can take the capacity the operator needs
-//! (issue 14).
+//! address, so that no client can take the capacity the operator needs.
 //!
 //! Handshakes in progress live in their own bounded pool, never in a
 //! session slot. When that pool (or one address's share of it) is full,

@@ -1,4 +1,4 @@
-//! Scenarios for issues 14 and 15, each against fresh real lluavd
+//! Attack and transport-security scenarios, each against fresh real lluavd
 //! processes in one run:
 //!
 //! - `--attacks`: an operator's experience under attack. For no attack, a
