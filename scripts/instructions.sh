@@ -4,10 +4,10 @@
 # Each figure is (instructions for N+1000 frames - for N frames) / 1000, so
 # start-up and the first frame's warm-up cancel out.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/lib.sh"
 command -v valgrind >/dev/null || { echo "needs valgrind (apt-get install valgrind)"; exit 2; }
-cargo build -q --release -p lluav-core --example instructions
-bin=target/release/examples/instructions
+bin=$(built_executable --release -p lluav-core --example instructions)
 count() { # impl label n
     valgrind --tool=callgrind --callgrind-out-file=/dev/null "$bin" "$1" "$2" "$3" 2>&1 |
         sed -n 's/.*Collected : \([0-9]*\).*/\1/p'

@@ -14,9 +14,8 @@
 #
 # Screenshots land in target/console-screenshots/.
 set -euo pipefail
-
-root=$(cd "$(dirname "$0")/.." && pwd)
-cd "$root"
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/lib.sh"
 
 missing=()
 [ -x /usr/bin/chromium ] || missing+=(chromium)
@@ -42,10 +41,7 @@ if ! cmp -s "$requirements" "$venv/installed-requirements.txt" ||
     cp "$requirements" "$venv/installed-requirements.txt"
 fi
 
-if [ -n "${LLUAVD:-}" ]; then
-    LLUAVD=$(realpath "$LLUAVD")
-    export LLUAVD
-fi
+find_lluavd
 node --test "$root"/tests/console/js/*.test.mjs
 
 cd "$root/tests/console"

@@ -6,7 +6,8 @@
 # packages) idempotently. LLUAVD=path uses that lluavd instead of building
 # one; MAVLINK_VENV=dir puts the venv elsewhere. Extra arguments go to pytest.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/lib.sh"
 venv=${MAVLINK_VENV:-target/mavlink-venv}
 requirements=tests/mavlink/requirements.txt
 if [ ! -x "$venv/bin/python" ]; then
@@ -21,9 +22,5 @@ if ! cmp -s "$requirements" "$stamp"; then
     "$venv/bin/python" -m pip install -q --disable-pip-version-check -r "$requirements"
     cp "$requirements" "$stamp"
 fi
-if [ -z "${LLUAVD:-}" ]; then
-    cargo build -q -p lluav-host --bin lluavd
-    LLUAVD=$PWD/target/debug/lluavd
-fi
-export LLUAVD
+find_lluavd
 exec "$venv/bin/python" -m pytest -q -p no:cacheprovider tests/mavlink "$@"

@@ -14,13 +14,19 @@
 #   PYTHON=/usr/bin/python3.12 bash scripts/test-python.sh
 #
 # Idempotent: everything it makes is under target/python/ (pip's cache too);
-# the test environments are made anew on every run.
+# the test environments are made anew on every run. Every package pip
+# installs, pip's build of ./python included, has its exact version in
+# python/tests/constraints.txt; the websockets versions are named below.
 set -euo pipefail
-cd "$(dirname "$0")/.."
-root=$PWD
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/lib.sh"
 work=$root/target/python
 python=${PYTHON:-python3}
 export PIP_CACHE_DIR=$work/pip-cache PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=1 PYTHONDONTWRITEBYTECODE=1
+# An environment variable, not -c, so that pip's isolated build
+# environment for `pip install ./python` obeys it too.
+export PIP_CONSTRAINT=$root/python/tests/constraints.txt
+newest_websockets=17.4 oldest_websockets=15.0.1
 mkdir -p "$work"
 
 fresh_venv() {
@@ -32,7 +38,7 @@ echo "== tools: maturin, ruff"
 if ! "$work/tools/bin/python" -c "" 2>/dev/null; then
     fresh_venv "$work/tools"
 fi
-"$work/tools/bin/pip" install -q 'maturin>=1.9.4,<2' 'ruff>=0.6'
+"$work/tools/bin/pip" install -q maturin ruff
 
 echo "== lints"
 (cd python && cargo fmt --check && cargo clippy --all-targets -- -D warnings)
@@ -44,13 +50,8 @@ rm -rf "$work/wheels"
 "$work/tools/bin/maturin" build --release -m python/Cargo.toml -i "$work/tools/bin/python" --out "$work/wheels"
 wheel=$(ls "$work"/wheels/lluav-*.whl)
 
-if [ -z "${LLUAVD:-}" ]; then
-    echo "== lluavd"
-    cargo build -p lluav-host --bin lluavd
-    LLUAVD=${CARGO_TARGET_DIR:-$root/target}/debug/lluavd
-fi
-LLUAVD=$(cd "$(dirname "$LLUAVD")" && pwd)/$(basename "$LLUAVD")
-export LLUAVD
+echo "== lluavd"
+find_lluavd
 
 run_suite() {
     # From a directory without a `lluav` folder, so that the installed
@@ -60,12 +61,12 @@ run_suite() {
 
 echo "== tests: the wheel ($(basename "$wheel")) in a fresh environment"
 fresh_venv "$work/test-venv"
-"$work/test-venv/bin/pip" install -q "$wheel[test]"
+"$work/test-venv/bin/pip" install -q "${wheel}[test]" "websockets==$newest_websockets"
 run_suite "$work/test-venv"
 
 echo "== tests: pip install ./python, oldest websockets"
 fresh_venv "$work/pip-venv"
-"$work/pip-venv/bin/pip" install -q 'websockets==15.0.1'
+"$work/pip-venv/bin/pip" install -q "websockets==$oldest_websockets"
 "$work/pip-venv/bin/pip" install -q "./python[test]"
-"$work/pip-venv/bin/python" -c 'import websockets; assert websockets.__version__ == "15.0.1", websockets.__version__'
+"$work/pip-venv/bin/python" -c "import websockets; assert websockets.__version__ == '$oldest_websockets', websockets.__version__"
 run_suite "$work/pip-venv"

@@ -10,7 +10,8 @@
 # handed to every suite. Extra suites can be skipped by naming the ones to
 # run: `bash scripts/test.sh rust python` (default: all four).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/lib.sh"
 step() { printf '\n=== %s\n' "$*"; }
 suites=("$@")
 [ ${#suites[@]} -gt 0 ] || suites=(rust python console mavlink)
@@ -24,14 +25,6 @@ for suite in "${suites[@]}"; do
     esac
 done
 
-lluavd() {
-    if [ -z "${LLUAVD:-}" ]; then
-        cargo build -q -p lluav-host --bin lluavd
-        LLUAVD=$PWD/${CARGO_TARGET_DIR:-target}/debug/lluavd
-        export LLUAVD
-    fi
-}
-
 for suite in "${suites[@]}"; do
     case $suite in
         rust)
@@ -40,17 +33,17 @@ for suite in "${suites[@]}"; do
             ;;
         python)
             step "tests: the Python SDK (scripts/test-python.sh)"
-            lluavd
+            find_lluavd
             bash scripts/test-python.sh
             ;;
         console)
             step "tests: the browser console in headless Chromium (scripts/test-console.sh)"
-            lluavd
+            find_lluavd
             bash scripts/test-console.sh
             ;;
         mavlink)
             step "tests: the MAVLink backend against MAVSDK and pymavlink (scripts/test-mavlink.sh)"
-            lluavd
+            find_lluavd
             bash scripts/test-mavlink.sh
             ;;
     esac
