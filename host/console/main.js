@@ -129,21 +129,36 @@ class Console {
       return;
     }
     this.log.exchange(ex);
-    const who = readLogin(ex.answer);
+    await this.#loginAnswered(ex, password);
+  }
+
+  /**
+   * What a `login` answer means, from the form or the command line: the
+   * role shown, the password kept to log in again after a reconnect, and
+   * whether to ask for one. A refused attempt leaves a logged-in session
+   * as it was (the server does too).
+   */
+  async #loginAnswered(ex, password) {
     if (!ex.ok) {
-      this.password = null;
-      this.#needLogin(ex.msg || 'Login refused');
+      if (this.mustLogin) {
+        this.password = null;
+        this.#needLogin(ex.msg || 'Login refused');
+      }
       return;
     }
+    const who = readLogin(ex.answer);
     if (!who.loggedIn) {
+      this.password = null;
       this.#needLogin('That value logs out. Enter the vehicle’s password.');
       return;
     }
     this.password = password;
-    this.mustLogin = false;
-    this.login.hide();
     this.header.showRole(who.admin ? 'admin' : 'user');
-    await this.#afterLogin();
+    if (this.mustLogin) {
+      this.mustLogin = false;
+      this.login.hide();
+      await this.#afterLogin();
+    }
   }
 
   /** Reads what only changes now and then: the command names, the mission. */
@@ -231,11 +246,7 @@ class Console {
     }
     this.log.exchange(ex);
     const name = commandName(line);
-    if (name === 'login' && ex.ok) {
-      const who = readLogin(ex.answer);
-      this.header.showRole(who.loggedIn ? (who.admin ? 'admin' : 'user') : null);
-      if (who.loggedIn) this.password = line.slice(line.indexOf(' ') + 1).trim();
-    }
+    if (name === 'login') await this.#loginAnswered(ex, line.slice(line.indexOf(' ') + 1).trim());
     if (name === 'help' && ex.ok) this.commandLine.setCommands(readCommands(ex.answer));
     if (ex.needsLogin) this.#needLogin('Log in to send commands.');
     if (MISSION_COMMANDS.has(name)) this.#pollMission();

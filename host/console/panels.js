@@ -127,12 +127,8 @@ export class StatePanel {
     tone(node, value ? onTone : 'neutral');
   }
 
-  #battery(b) {
-    const percent = b?.percent ?? null;
-    const parts = [];
-    if (percent !== null) parts.push(`${percent.toFixed(0)} %`);
-    if (b?.voltage !== null && b?.voltage !== undefined) parts.push(`${b.voltage.toFixed(1)} V`);
-    this.battery.textContent = parts.length ? parts.join(' · ') : '—';
+  #battery(percent) {
+    this.battery.textContent = percent === null ? '—' : `${percent.toFixed(0)} %`;
     this.batteryBar.value = percent ?? 0;
     tone(this.battery, percent === null ? 'neutral' : percent < 20 ? 'danger' : percent < 40 ? 'warn' : 'good');
   }

@@ -1,48 +1,44 @@
 // What the answers say about the vehicle, read defensively.
 //
-// Every field name of an answer the page reads is in FIELDS below, and
-// nowhere else: backends (the simulator, the MAVLink bridge) may add,
-// drop or reshape fields, and a field that is missing or of another type
-// reads as null rather than breaking the page. Coordinates are NED metres
-// (x north, y east, z down), angles radians.
+// Every member name of an answer the page reads is in FIELDS below, and
+// nowhere else. They are the names lluavd sends (tests/console/answers/
+// holds each backend's answers, captured from real runs): both vehicles
+// send the `state` members, except `link` and `heartbeat_age_ms` (the
+// MAVLink backend only) and `waypoints_left` (the simulator only); a member
+// that is missing, null or of another type reads as null rather than
+// breaking the page. Coordinates are NED metres (x north, y east, z down),
+// angles radians.
 
-/** Where each fact lives; a list gives alternatives, first found wins. */
+/** The member each fact is read from. */
 export const FIELDS = {
-  state: ['state'],
-  fsm: ['fsm', 'mode'],
-  armed: ['armed'],
-  lockMode: ['lock_mode'],
-  airborne: ['airborne'],
-  battery: ['battery'],
-  batteryPercent: ['remaining', 'percent', 'percentage'],
-  batteryVoltage: ['voltage', 'voltage_v'],
-  position: ['position'],
-  velocity: ['velocity'],
-  yaw: ['yaw', 'heading'],
-  altitude: ['altitude'],
-  setpoint: ['setpoint'],
-  home: ['home'],
-  link: ['link'],
-  linkAgeMs: ['heartbeat_age_ms', 'link_age_ms'],
-  waypointsLeft: ['waypoints_left'],
-  task: ['taskname'],
-  north: ['x', 'n', 'north'],
-  east: ['y', 'e', 'east'],
-  down: ['z', 'd', 'down'],
-  missionId: ['ext_id'],
-  waypoints: ['waypoints'],
-  waypointId: ['id', 'wp_id'],
-  loggedIn: ['logged_in'],
-  admin: ['admin'],
-  commands: ['commands'],
+  state: 'state',
+  fsm: 'fsm',
+  armed: 'armed',
+  lockMode: 'lock_mode',
+  airborne: 'airborne',
+  battery: 'battery',
+  position: 'position',
+  velocity: 'velocity',
+  yaw: 'yaw',
+  altitude: 'altitude',
+  setpoint: 'setpoint',
+  home: 'home',
+  link: 'link',
+  linkAgeMs: 'heartbeat_age_ms',
+  waypointsLeft: 'waypoints_left',
+  north: 'x',
+  east: 'y',
+  down: 'z',
+  missionId: 'ext_id',
+  waypoints: 'waypoints',
+  waypointId: 'id',
+  loggedIn: 'logged_in',
+  admin: 'admin',
+  commands: 'commands',
 };
 
-function pick(object, names) {
-  if (object === null || typeof object !== 'object') return undefined;
-  for (const name of names) {
-    if (Object.hasOwn(object, name)) return object[name];
-  }
-  return undefined;
+function pick(object, name) {
+  return object !== null && typeof object === 'object' && Object.hasOwn(object, name) ? object[name] : undefined;
 }
 
 function number(value) {
@@ -57,23 +53,12 @@ function text(value) {
   return typeof value === 'string' && value !== '' ? value : null;
 }
 
-/** `{n, e, d}` from `{x, y, z}` (or n/e/d, or a 3-array); null if unusable. */
+/** `{n, e, d}` from `{x, y, z}`; null if any is unusable. */
 export function ned(value) {
-  if (Array.isArray(value)) {
-    const [n, e, d] = value.map(number);
-    return n === null || e === null ? null : { n, e, d };
-  }
   const n = number(pick(value, FIELDS.north));
   const e = number(pick(value, FIELDS.east));
-  if (n === null || e === null) return null;
-  return { n, e, d: number(pick(value, FIELDS.down)) };
-}
-
-function battery(value) {
-  if (typeof value === 'number') return { percent: number(value), voltage: null };
-  const percent = number(pick(value, FIELDS.batteryPercent));
-  const voltage = number(pick(value, FIELDS.batteryVoltage));
-  return percent === null && voltage === null ? null : { percent, voltage };
+  const d = number(pick(value, FIELDS.down));
+  return n === null || e === null || d === null ? null : { n, e, d };
 }
 
 /** The vehicle as a `state` answer describes it; every field may be null. */
@@ -82,23 +67,21 @@ export function readState(answer) {
   const setpointRaw = pick(s, FIELDS.setpoint);
   const setpoint = ned(setpointRaw);
   if (setpoint) setpoint.yaw = number(pick(setpointRaw, FIELDS.yaw));
-  const link = pick(s, FIELDS.link);
   return {
     fsm: text(pick(s, FIELDS.fsm)),
     armed: bool(pick(s, FIELDS.armed)),
     lockMode: bool(pick(s, FIELDS.lockMode)),
     airborne: bool(pick(s, FIELDS.airborne)),
-    battery: battery(pick(s, FIELDS.battery)),
+    battery: number(pick(s, FIELDS.battery)),
     position: ned(pick(s, FIELDS.position)),
     velocity: ned(pick(s, FIELDS.velocity)),
     yaw: number(pick(s, FIELDS.yaw)),
     altitude: number(pick(s, FIELDS.altitude)),
     setpoint,
     home: ned(pick(s, FIELDS.home)),
-    link: typeof link === 'boolean' ? (link ? 'up' : 'lost') : text(link),
+    link: text(pick(s, FIELDS.link)),
     linkAgeMs: number(pick(s, FIELDS.linkAgeMs)),
     waypointsLeft: number(pick(s, FIELDS.waypointsLeft)),
-    task: text(pick(s, FIELDS.task)),
   };
 }
 
@@ -107,10 +90,11 @@ export function readMission(answer) {
   const list = pick(answer, FIELDS.waypoints);
   const waypoints = [];
   if (Array.isArray(list)) {
-    list.forEach((raw, index) => {
+    for (const raw of list) {
       const p = ned(raw);
-      if (p) waypoints.push({ ...p, id: number(pick(raw, FIELDS.waypointId)) ?? index + 1 });
-    });
+      const id = number(pick(raw, FIELDS.waypointId));
+      if (p && id !== null) waypoints.push({ ...p, id });
+    }
   }
   return { id: number(pick(answer, FIELDS.missionId)), waypoints };
 }
@@ -131,7 +115,7 @@ export function readCommands(answer) {
 
 /** The altitude (metres up) of a NED point, or null. */
 export function altitudeOf(point) {
-  return point && point.d !== null ? -point.d : null;
+  return point ? -point.d : null;
 }
 
 /**
@@ -149,7 +133,7 @@ export function decimal(value, digits = 2) {
  * is going to), else its position's; the heading is kept.
  */
 export function setpointLine(state, north, east) {
-  const flying = state.airborne && state.setpoint && state.setpoint.d !== null;
+  const flying = state.airborne && state.setpoint !== null;
   const holding = flying ? state.setpoint : state.position;
   const down = holding?.d ?? 0;
   const yaw = state.yaw ?? state.setpoint?.yaw ?? 0;

@@ -13,6 +13,7 @@ import os
 import pathlib
 import queue
 import signal
+import socket
 import subprocess
 import tempfile
 import threading
@@ -119,6 +120,13 @@ class Lluavd:
                 self.proc.wait()
         self._stderr.close()
         self._dir.cleanup()
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that nothing holds now (for a MAVLink link)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def chromium(width: int = 1440, height: int = 900, extra_flags: tuple[str, ...] = ()) -> webdriver.Chrome:

@@ -258,6 +258,21 @@ def test_log_out_forgets_the_password_and_asks_again(daemon, page):
     page.wait(lambda: page.text("lock") == "unlocked", "and its end")
 
 
+def test_login_from_the_command_line_counts_as_the_forms(daemon, page):
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("role") == "user", "logged in")
+    page.command("login 1025")
+    page.wait(lambda: page.text("role") == "admin", "the admin value from the command line gives admin")
+    page.command("login not-it")
+    page.wait(lambda: page.log_entries()[0]["ret"] == "-1", "the refusal is logged")
+    assert page.text("role") == "admin" and not page.shown("login"), "a refused attempt changes nothing"
+    page.command("login 0315")
+    page.wait(lambda: page.shown("login"), "the logout value asks for the password")
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("role") == "user", "the form logs in again")
+
+
 def test_losing_the_daemon_shows_disconnected_and_retries(daemon, page):
     page.open(daemon)
     page.login(PASSWORD)

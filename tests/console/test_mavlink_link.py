@@ -3,22 +3,15 @@ heartbeat age, from a small pymavlink autopilot (tests/mavlink)."""
 
 from __future__ import annotations
 
-import socket
 import sys
 
 import pytest
 
 from conftest import PASSWORD
-from harness import ROOT, Lluavd
+from harness import ROOT, Lluavd, free_udp_port
 
 sys.path.insert(0, str(ROOT / "tests" / "mavlink"))
 from fault_autopilot import FaultyAutopilot  # noqa: E402
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture

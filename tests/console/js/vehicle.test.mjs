@@ -1,72 +1,107 @@
-// The page's reading of answers, without a browser: node --test.
+// The page's reading of answers, without a browser: node --test. The
+// answers are the backends' own, captured from real lluavd runs by
+// tests/console/test_answers.py, which fails when a backend's answers no
+// longer have the shape kept in tests/console/answers/.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
+import { readdirSync, readFileSync } from 'node:fs';
 
 import {
-  decimal, readCommands, readLogin, readMission, readState, setpointLine,
+  decimal, FIELDS, readCommands, readLogin, readMission, readState, setpointLine,
 } from '../../../host/console/vehicle.js';
 
-const SIM_STATE = {
-  ret: 0, cmd: 2, ts: 1,
-  state: {
-    armed: true, fsm: 'hover', lock_mode: false, airborne: true,
-    position: { x: 1.5, y: -2, z: -3 }, velocity: { x: 0, y: 0.5, z: -0.1 },
-    yaw: 1.57, altitude: 3, battery: 87.5,
-    setpoint: { x: 2, y: -2, z: -3, yaw: 1.57 }, home: { x: 0, y: 0, z: 0 },
-    waypoints_left: 2, taskname: null,
-  },
-};
+const DIR = new URL('../answers/', import.meta.url);
+const answer = (name) => JSON.parse(readFileSync(new URL(`${name}.json`, DIR), 'utf8'));
+const STATES = ['sim-state-ground', 'sim-state-mission', 'mavlink-state', 'mavlink-state-lost'];
 
-test('the simulator state reads field by field', () => {
-  const s = readState(SIM_STATE);
-  assert.equal(s.fsm, 'hover');
-  assert.equal(s.armed, true);
-  assert.equal(s.lockMode, false);
-  assert.deepEqual(s.position, { n: 1.5, e: -2, d: -3 });
-  assert.deepEqual(s.setpoint, { n: 2, e: -2, d: -3, yaw: 1.57 });
-  assert.deepEqual(s.battery, { percent: 87.5, voltage: null });
-  assert.equal(s.link, null, 'the simulator has no autopilot link');
-  assert.equal(s.waypointsLeft, 2);
-  assert.equal(s.task, null);
+/** Every member name anywhere in an answer. */
+function members(value, into = new Set()) {
+  if (Array.isArray(value)) value.forEach((v) => members(v, into));
+  else if (value !== null && typeof value === 'object') {
+    for (const [k, v] of Object.entries(value)) {
+      into.add(k);
+      members(v, into);
+    }
+  }
+  return into;
+}
+
+test('every member the page reads is one a backend sends', () => {
+  const sent = new Set();
+  for (const file of readdirSync(DIR)) members(answer(file.replace(/\.json$/, '')), sent);
+  const unsent = Object.values(FIELDS).filter((name) => !sent.has(name));
+  assert.deepEqual(unsent, [], 'FIELDS names members no captured answer has');
 });
 
-test('missing or mistyped fields read as null instead of breaking', () => {
-  const s = readState({ ret: 0, state: { fsm: 7, armed: 'yes', position: { x: 'a', y: 1 }, battery: null } });
+test('a fact reads as null exactly when its backend does not send it', () => {
+  for (const name of STATES) {
+    const sent = answer(name).state;
+    for (const [fact, value] of Object.entries(readState(answer(name)))) {
+      assert.equal(value === null, (sent[FIELDS[fact]] ?? null) === null, `${name}: ${fact}`);
+    }
+  }
+});
+
+test("the simulator's state on the ground and flying a mission", () => {
+  const ground = readState(answer('sim-state-ground'));
+  assert.equal(ground.fsm, 'disarmed');
+  assert.equal(ground.armed, false);
+  assert.equal(ground.lockMode, false);
+  assert.deepEqual(ground.position, { n: 0, e: 0, d: 0 });
+  assert.deepEqual(ground.setpoint, { n: 0, e: 0, d: 0, yaw: 0 });
+  assert.equal(ground.battery, 100, 'a percentage');
+  assert.equal(ground.link, null, 'the simulator has no autopilot link');
+  assert.equal(ground.waypointsLeft, 0);
+  const flying = readState(answer('sim-state-mission'));
+  assert.equal(flying.fsm, 'mission');
+  assert.equal(flying.airborne, true);
+  assert.equal(flying.waypointsLeft, 3);
+  assert.equal(flying.altitude, -flying.position.d);
+});
+
+test("the MAVLink backend's state, its link up and lost", () => {
+  // The telemetry tests/console/test_answers.py's autopilot streams.
+  const up = readState(answer('mavlink-state'));
+  assert.equal(up.fsm, 'disarmed');
+  assert.equal(up.link, 'up');
+  assert.ok(up.linkAgeMs >= 0 && up.linkAgeMs < 3000, up.linkAgeMs);
+  assert.deepEqual(up.position, { n: 3, e: -2, d: -10 });
+  assert.deepEqual(up.velocity, { n: 0.5, e: 0.25, d: -0.1 });
+  assert.equal(up.yaw, 1.25);
+  assert.equal(up.altitude, 10);
+  assert.equal(up.battery, 76);
+  assert.deepEqual(up.home, { n: 0, e: 0, d: 0 });
+  assert.equal(up.setpoint, null, 'no setpoint stream');
+  assert.equal(up.waypointsLeft, null, 'the simulator only');
+  const lost = readState(answer('mavlink-state-lost'));
+  assert.equal(lost.link, 'lost');
+  assert.ok(lost.linkAgeMs > 3000, lost.linkAgeMs);
+});
+
+test('missing or mistyped members read as null instead of breaking', () => {
+  const real = answer('sim-state-ground');
+  const s = readState({ ...real, state: { ...real.state, fsm: 7, armed: 'yes', position: { x: 'a', y: 1, z: 0 }, battery: null } });
   assert.equal(s.fsm, null);
   assert.equal(s.armed, null);
   assert.equal(s.position, null);
   assert.equal(s.battery, null);
-  assert.equal(s.setpoint, null);
   assert.deepEqual(readState({ ret: 0 }).position, null);
   assert.deepEqual(readState(null).fsm, null);
 });
 
-test('a MAVLink-style state with a link, a battery object and arrays reads too', () => {
-  const s = readState({
-    state: {
-      fsm: 'mission', link: 'lost', heartbeat_age_ms: 2500,
-      battery: { voltage: 15.2, remaining: 41 }, position: [1, 2, -5], velocity: { n: 1, e: 0, d: 0 },
-    },
-  });
-  assert.equal(s.link, 'lost');
-  assert.equal(s.linkAgeMs, 2500);
-  assert.deepEqual(s.battery, { percent: 41, voltage: 15.2 });
-  assert.deepEqual(s.position, { n: 1, e: 2, d: -5 });
-  assert.deepEqual(s.velocity, { n: 1, e: 0, d: 0 });
-  assert.equal(readState({ state: { link: true } }).link, 'up');
-});
-
-test('mission waypoints keep their ids, or get their place in the list', () => {
-  const m = readMission({ ext_id: 1001, waypoints: [{ id: 7, x: 1, y: 2, z: -3 }, { x: 4, y: 5, z: -6 }, { x: 'bad' }] });
-  assert.equal(m.id, 1001);
-  assert.deepEqual(m.waypoints, [{ n: 1, e: 2, d: -3, id: 7 }, { n: 4, e: 5, d: -6, id: 2 }]);
-  assert.deepEqual(readMission({ ext_id: null, waypoints: [] }), { id: null, waypoints: [] });
+test('both backends list the mission the same way', () => {
+  const expected = [{ n: 5, e: 0, d: -3, id: 1 }, { n: 5, e: 5, d: -3, id: 2 }, { n: 0, e: 5, d: -3, id: 3 }];
+  for (const name of ['sim-mw_list', 'mavlink-mw_list']) {
+    assert.deepEqual(readMission(answer(name)), { id: 1001, waypoints: expected }, name);
+  }
+  assert.deepEqual(readMission(answer('sim-mw_list-empty')), { id: null, waypoints: [] });
 });
 
 test('login and help answers', () => {
-  assert.deepEqual(readLogin({ ret: 0, logged_in: true, admin: false }), { loggedIn: true, admin: false });
-  assert.deepEqual(readLogin({ ret: -1 }), { loggedIn: false, admin: false });
-  assert.deepEqual(readCommands({ commands: ['login', 'state', 3] }), ['login', 'state']);
+  assert.deepEqual(readLogin(answer('login')), { loggedIn: true, admin: false });
+  assert.deepEqual(readLogin(answer('login-refused')), { loggedIn: false, admin: false });
+  const commands = readCommands(answer('help'));
+  assert.ok(commands.includes('login') && commands.includes('set_sp_ned'), commands);
 });
 
 test('numbers are written as the protocol grammar reads them', () => {
@@ -79,11 +114,16 @@ test('numbers are written as the protocol grammar reads them', () => {
 });
 
 test('a setpoint keeps the height the vehicle is going to and its heading', () => {
-  const flying = readState(SIM_STATE);
+  const real = answer('sim-state-mission').state;
+  const at = (changes) => readState({ state: { ...real, ...changes } });
+  const setpoint = { x: 2, y: -2, z: -3, yaw: 1.57 };
+  const flying = at({ position: { x: 1.5, y: -2, z: -3 }, yaw: 1.57, setpoint });
   assert.equal(setpointLine(flying, 4.444, -1), 'set_sp_ned 4.44:-1:-3:1.57');
-  const climbing = readState({ state: { ...SIM_STATE.state, position: { x: 0, y: 0, z: -1.2 } } });
+  const climbing = at({ position: { x: 0, y: 0, z: -1.2 }, yaw: 1.57, setpoint });
   assert.equal(setpointLine(climbing, 1, 1), 'set_sp_ned 1:1:-3:1.57', 'the target height, not the current one');
-  const ground = readState({ state: { airborne: false, position: { x: 0, y: 0, z: 0 }, yaw: 0 } });
+  const ground = readState(answer('sim-state-ground'));
   assert.equal(setpointLine(ground, 1, 2), 'set_sp_ned 1:2:0:0');
+  const noStream = readState(answer('mavlink-state'));
+  assert.equal(setpointLine(noStream, 1, 2), 'set_sp_ned 1:2:-10:1.25', 'no setpoint: the height it is at');
   assert.equal(setpointLine(readState({}), 1, 2), 'set_sp_ned 1:2:0:0', 'nothing known: ground level, north');
 });
