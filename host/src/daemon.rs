@@ -1,5 +1,7 @@
-//! `lluavd` put together: a vehicle behind lluav-core's [`Server`], served
-//! over [`crate::net`], ticked on a timer, flushed at shutdown.
+//! `lluavd` put together: the companion computer and a vehicle (the
+//! simulator, or an autopilot over MAVLink) composed into an [`Onboard`]
+//! behind lluav-core's [`Server`], served over [`crate::net`], ticked on a
+//! timer, flushed at shutdown.
 //!
 //! The daemon holds one `Server` for the vehicle behind a mutex. Critical
 //! sections are one [`Server::handle`] call per frame and one tick per
@@ -7,22 +9,22 @@
 
 use std::future::Future;
 use std::net::SocketAddr;
-use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use lluav_core::{Auth, AuthError, Backend, Clock, Message, Outcome, Server, Session, Ticket};
+use lluav_core::{Auth, AuthError, Clock, Message, Outcome, Server, Session};
 use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
 use tracing::{error, info};
 
-use crate::companion::{Companion, CompanionConfig};
+use crate::companion::{self, Companion, CompanionConfig};
 use crate::config::Settings;
 use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
 use crate::net::{self, Echo, Handler};
 use crate::onboard::Onboard;
 use crate::recent_log::RecentLog;
-use crate::sim::Simulator;
+use crate::sim::{SimConfig, Simulator};
+use crate::vehicle::Vehicle;
 
 /// How often the vehicle is advanced.
 pub const TICK: Duration = Duration::from_millis(50);
@@ -45,35 +47,13 @@ impl Clock for SystemClock {
     }
 }
 
-/// Completes when a pending command's ticket is ready (see [`Vehicle::ready`]).
-pub type Ready = Pin<Box<dyn Future<Output = ()> + Send>>;
+/// The protocol server of the companion computer and vehicle `V`.
+pub type OnboardServer<V> = Server<Onboard<V>, SystemClock>;
 
-/// A backend the daemon can drive: advanced in time and flushed at exit.
-pub trait Vehicle: Backend + Send + 'static {
-    /// Advances the vehicle by `dt` of wall time.
-    fn tick(&mut self, dt: Duration);
-    /// Persists anything pending.
-    fn flush(&mut self) -> std::io::Result<()>;
-    /// A password saved by an earlier `passwd`, used when none is configured.
-    fn stored_password(&self) -> Option<String> {
-        None
-    }
-    /// A future that completes once the command `execute` left pending
-    /// with `ticket` can be finished. It is awaited with the vehicle
-    /// unlocked, so other sessions are served meanwhile; then
-    /// [`Server::resume`] asks [`Backend::finish`] for the answer. A vehicle
-    /// that never answers [`lluav_core::Step::Pending`] keeps the default,
-    /// which is ready at once.
-    fn ready(&mut self, ticket: Ticket) -> Ready {
-        let _ = ticket;
-        Box::pin(std::future::ready(()))
-    }
-}
+/// The protocol server, shared by every connection.
+pub type Shared<V> = Arc<Mutex<OnboardServer<V>>>;
 
-/// The vehicle's protocol server, shared by every connection.
-pub type Shared<V> = Arc<Mutex<Server<V, SystemClock>>>;
-
-fn lock<V>(server: &Mutex<Server<V, SystemClock>>) -> MutexGuard<'_, Server<V, SystemClock>> {
+fn lock<V>(server: &Mutex<OnboardServer<V>>) -> MutexGuard<'_, OnboardServer<V>> {
     // The core never panics on input and the simulator catches its own
     // panics, so a poisoned lock means a bug elsewhere; the vehicle state
     // is still the best there is, so keep serving it.
@@ -94,7 +74,7 @@ impl<V> Protocol<V> {
 
 impl<V: Vehicle> Protocol<V> {
     /// Runs `f` on the server, locked.
-    fn locked<R>(&self, f: impl FnOnce(&mut Server<V, SystemClock>) -> R) -> R {
+    fn locked<R>(&self, f: impl FnOnce(&mut OnboardServer<V>) -> R) -> R {
         // The common case, a free lock, runs right here: handing the worker
         // to another thread for every frame (block_in_place) cost more than
         // the frame itself (the load bench's profile: most of lluavd's CPU
@@ -201,7 +181,7 @@ pub enum DaemonError {
 }
 
 enum Mode<V> {
-    Protocol(Box<Server<V, SystemClock>>),
+    Protocol(Box<OnboardServer<V>>),
     Echo,
 }
 
@@ -212,11 +192,26 @@ pub struct Daemon<V> {
     mode: Mode<V>,
 }
 
-impl Daemon<Onboard<Simulator>> {
+/// `lluavd`'s default backend: the companion computer and the simulated
+/// vehicle, both keeping their files in `companion.data_dir`; the
+/// simulation runs at `speed`.
+pub fn simulated(companion: CompanionConfig, speed: f64) -> std::io::Result<Onboard<Simulator>> {
+    let data_dir = companion.data_dir.clone();
+    let companion = Companion::open(companion)?;
+    let seed = companion::machine_id().unwrap_or_else(|_| "lluav-sim".into());
+    let sim = Simulator::open(SimConfig {
+        data_dir,
+        speed,
+        seed,
+    })?;
+    Ok(Onboard::new(companion, sim))
+}
+
+impl Daemon<Simulator> {
     /// Opens the companion computer and the simulated vehicle (unless
     /// `settings.echo`), decides the password and binds the listener.
     pub async fn open(settings: &Settings, log: RecentLog) -> Result<Self, DaemonError> {
-        let vehicle = if settings.echo {
+        let onboard = if settings.echo {
             None
         } else {
             let companion = CompanionConfig {
@@ -224,18 +219,17 @@ impl Daemon<Onboard<Simulator>> {
                 log,
                 password_pinned: settings.password.is_some(),
             };
-            let onboard =
-                Onboard::simulator(companion, settings.sim_speed).map_err(|source| DaemonError::Open {
-                    dir: settings.data_dir.clone(),
-                    source,
-                })?;
+            let onboard = simulated(companion, settings.sim_speed).map_err(|source| DaemonError::Open {
+                dir: settings.data_dir.clone(),
+                source,
+            })?;
             Some(onboard)
         };
-        Daemon::with_vehicle(settings, vehicle).await
+        Daemon::with_vehicle(settings, onboard).await
     }
 }
 
-impl Daemon<Onboard<MavlinkVehicle>> {
+impl Daemon<MavlinkVehicle> {
     /// Opens the companion computer and the MAVLink link to the autopilot
     /// at `address`, decides the password and binds the listener.
     pub async fn open_mavlink(
@@ -263,9 +257,8 @@ impl Daemon<Onboard<MavlinkVehicle>> {
 }
 
 impl<V: Vehicle> Daemon<V> {
-    /// A daemon serving `vehicle`, or the echo handler when `vehicle` is
-    /// `None`.
-    pub async fn with_vehicle(settings: &Settings, vehicle: Option<V>) -> Result<Self, DaemonError> {
+    /// A daemon serving `onboard`, or the echo handler when it is `None`.
+    pub async fn with_vehicle(settings: &Settings, vehicle: Option<Onboard<V>>) -> Result<Self, DaemonError> {
         let mode = match vehicle {
             Some(v) => {
                 let auth = auth(settings, v.stored_password())?;

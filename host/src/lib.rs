@@ -1,7 +1,8 @@
 //! LLUAV on the host (tokio): the `lluavd` daemon, its simulated vehicle and
 //! the `lluav` client library.
 //!
-//! - [`daemon`]: the vehicle behind lluav-core's server, ticked and flushed;
+//! - [`daemon`]: the companion computer and a vehicle composed behind
+//!   lluav-core's server, ticked and flushed;
 //! - [`net`]: the network layer every connection goes through (accept,
 //!   TLS, the HTTP upgrade and its Origin/Host policy, per-address limits,
 //!   framing, shutdown);
@@ -9,7 +10,11 @@
 //! - [`console`]: the browser console, answered to plain HTTP requests;
 //! - [`client`]: the typed async client `lluav` is built on;
 //! - [`onboard`]: the daemon's backend, a [`companion`] computer and a
-//!   vehicle (the simulator, [`sim`]) composed;
+//!   vehicle composed;
+//! - [`vehicle`]: what every vehicle is to the rest (the [`vehicle::Vehicle`]
+//!   trait, positions, the mission JSON), implemented by the simulator
+//!   ([`sim`]) and by an autopilot over MAVLink ([`mavlink`]);
+//! - [`files`]: the data directory, the only place client paths reach;
 //! - [`recent_log`]: the log `showmsg` shows.
 
 #![warn(missing_docs)]
@@ -19,8 +24,10 @@ pub mod companion;
 pub mod config;
 pub mod console;
 pub mod daemon;
+pub mod files;
 pub mod mavlink;
 pub mod net;
 pub mod onboard;
 pub mod recent_log;
 pub mod sim;
+pub mod vehicle;

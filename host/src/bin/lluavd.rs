@@ -10,8 +10,9 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use lluav_host::config::{Cli, Settings};
-use lluav_host::daemon::{Daemon, DaemonError, Vehicle};
+use lluav_host::daemon::{Daemon, DaemonError};
 use lluav_host::recent_log::RecentLog;
+use lluav_host::vehicle::Vehicle;
 use tokio::signal::unix::{Signal, SignalKind, signal};
 use tracing::{error, info, warn};
 use tracing_subscriber::layer::SubscriberExt;

@@ -11,9 +11,9 @@ use lluav_core::{Args, Command, Fields};
 use nix::fcntl::OFlag;
 
 use super::error::{Error, Result};
-use super::files::{Area, Files, capture_dir, create_file};
 use super::images;
-use crate::onboard::Snapshot;
+use crate::files::{Area, Files, capture_dir, create_file};
+use crate::vehicle::Snapshot;
 
 /// Most pose samples a bag buffers before they are written out.
 const BAG_BUFFER: usize = 10_000;

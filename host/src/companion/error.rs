@@ -4,20 +4,15 @@
 
 use lluav_core::Ret;
 
-use crate::onboard::Refusal;
+use crate::files;
+use crate::vehicle::Refusal;
 
 /// A command about the companion computer that was not carried out.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A named file or directory does not exist.
-    #[error("Not found: {0}")]
-    NotFound(String),
-    /// A client path resolves outside the data directory (through a link).
-    #[error("Refused: {0} leaves the data directory")]
-    Escapes(String),
-    /// A value the companion cannot use (a file too large, not UTF-8).
-    #[error("Invalid arguments: {0}")]
-    Invalid(String),
+    /// The data directory refused a path or failed.
+    #[error(transparent)]
+    Files(#[from] files::Error),
     /// `passwd` while `--password`, `LLUAV_PASSWORD` or the config file
     /// pins the password.
     #[error("Password is set by the daemon's configuration")]
@@ -26,42 +21,30 @@ pub enum Error {
     /// answered as a fault.
     #[error("Unhandled exception")]
     NotOwned(&'static str),
-    /// A system call or disk I/O failed.
-    #[error("{what}: {err}")]
-    Io {
-        /// What was being done.
-        what: String,
-        /// The error.
-        err: std::io::Error,
-    },
 }
 
 impl Error {
     /// An I/O failure while doing `what`.
     pub(crate) fn io(what: impl Into<String>, err: std::io::Error) -> Self {
-        Error::Io {
-            what: what.into(),
-            err,
-        }
+        files::Error::io(what, err).into()
     }
 
-    /// An I/O failure about `name`: not-found is the client's business
-    /// (-1), anything else failed on this machine (-3).
+    /// An I/O failure about `name` (see [`files::Error::about`]).
     pub(crate) fn about(what: &str, name: &str, err: std::io::Error) -> Self {
-        if err.kind() == std::io::ErrorKind::NotFound {
-            Error::NotFound(name.to_owned())
-        } else {
-            Error::io(format!("{what} {name}"), err)
-        }
+        files::Error::about(what, name, err).into()
+    }
+
+    /// Something a client named does not exist.
+    pub(crate) fn not_found(what: String) -> Self {
+        files::Error::NotFound(what).into()
     }
 }
 
 impl Refusal for Error {
     fn ret(&self) -> Ret {
         match self {
-            Error::NotFound(_) | Error::Escapes(_) | Error::PasswordPinned => Ret::Failed,
-            Error::Invalid(_) => Ret::InvalidArgs,
-            Error::Io { .. } => Ret::SystemCall,
+            Error::Files(e) => e.ret(),
+            Error::PasswordPinned => Ret::Failed,
             Error::NotOwned(_) => Ret::Unhandled,
         }
     }

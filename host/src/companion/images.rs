@@ -8,8 +8,7 @@ use std::fs;
 use lluav_core::{Args, Command, Fields};
 
 use super::error::{Error, Result};
-use super::files::{self, Area, Entry, Files, Kind, capture_dir};
-use super::system;
+use crate::files::{self, Area, Entry, Files, Kind, capture_dir};
 
 /// `list_imagedir`, `rm_imagedir`, `clear_images`.
 pub(super) fn run(cmd: &Command<'_>, files: &Files, now_ms: i64, out: &mut Fields<'_>) -> Result {
@@ -40,7 +39,7 @@ fn remove(files: &Files, name: &str, out: &mut Fields<'_>) -> Result {
     let path = files.named(Area::Images, name)?;
     let meta = fs::symlink_metadata(&path).map_err(|e| Error::about("stat", name, e))?;
     if !meta.is_dir() {
-        return Err(Error::NotFound(format!("{name} (not an image directory)")));
+        return Err(Error::not_found(format!("{name} (not an image directory)")));
     }
     fs::remove_dir_all(&path).map_err(|e| Error::about("remove", name, e))?;
     tracing::info!(dir = name, "image directory removed");
@@ -65,7 +64,7 @@ pub(super) fn clear(
     };
     let want = min_gb.map(|gb| (f64::from(gb) * f64::from(1u32 << 30)) as u64);
     let removed = files::clear_oldest(&files.area(area), kind, keep, || match want {
-        Some(bytes) => Ok(system::available_bytes(files.root())? >= bytes),
+        Some(bytes) => Ok(files::available_bytes(files.root())? >= bytes),
         None => Ok(false),
     })
     .map_err(|e| Error::io(format!("clear {}", area.dir_name()), e))?;

@@ -4,7 +4,7 @@
 use lluav_core::{Args, Command, Fields};
 
 use super::error::{Error, Result};
-use super::files::{Area, Files, atomic_write};
+use crate::files::{Area, Files, atomic_write};
 use crate::recent_log::RecentLog;
 
 /// `showmsg` without a count shows this many lines.

@@ -9,9 +9,9 @@ use std::fs;
 use lluav_core::{Args, Command, CommandId, Fields};
 
 use super::error::{Error, Result};
-use super::files::{self, Area, Files, Kind, atomic_write};
 use super::images::write_entries;
-use crate::onboard::Snapshot;
+use crate::files::{self, Area, Files, Kind, atomic_write};
+use crate::vehicle::Snapshot;
 
 /// Map keyframes are taken every this many metres flown.
 const KEYFRAME_SPACING_M: f64 = 2.0;
@@ -56,7 +56,7 @@ impl Maps {
         let full = files.within(Area::Maps, path)?;
         let meta = fs::metadata(&full).map_err(|e| Error::about("stat", path, e))?;
         if !meta.is_file() {
-            return Err(Error::NotFound(format!("{path} (not a map file)")));
+            return Err(Error::not_found(format!("{path} (not a map file)")));
         }
         self.current = Some(path.to_owned());
         out.str("map_path", path);
@@ -67,7 +67,7 @@ impl Maps {
         let path = files.named(Area::Maps, name)?;
         let meta = fs::symlink_metadata(&path).map_err(|e| Error::about("stat", name, e))?;
         if meta.is_dir() {
-            return Err(Error::NotFound(format!("{name} (not a map file)")));
+            return Err(Error::not_found(format!("{name} (not a map file)")));
         }
         fs::remove_file(&path).map_err(|e| Error::about("remove", name, e))?;
         if self.current.as_deref() == Some(name) {

@@ -3,7 +3,7 @@
 //! Whatever vehicle backend flies (the simulator, an autopilot over
 //! MAVLink), the commands about this machine are answered here, the same
 //! way: maps, images, bags, videos and logs as real files under the data
-//! directory ([`Files`]); `sysinfo`, `diskusage` and `machineid` from the
+//! directory ([`crate::files`]); `sysinfo`, `diskusage` and `machineid` from the
 //! real machine; `showmsg`/`savemsg` from the daemon's recent log; the
 //! reboots of the machine and of its nodes (simulated and logged: nothing
 //! here ever reboots or powers off the real machine); and the password file
@@ -15,7 +15,6 @@
 
 mod bags;
 mod error;
-mod files;
 mod images;
 mod logs;
 mod maps;
@@ -29,13 +28,12 @@ use std::time::Duration;
 
 use lluav_core::{Command, CommandId, Context, Fields, Section};
 
-use crate::onboard::Snapshot;
+use crate::files::Files;
 use crate::recent_log::RecentLog;
+use crate::vehicle::Snapshot;
 use bags::Bags;
 pub use error::Error;
 use error::Result;
-pub use files::Files;
-pub(crate) use files::atomic_write;
 use logs::Logs;
 use maps::Maps;
 use nodes::Nodes;

@@ -9,7 +9,7 @@ use lluav_core::{CommandId, Fields, TABLE};
 
 use super::error::{Error, Result};
 use super::system;
-use crate::onboard::Snapshot;
+use crate::vehicle::Snapshot;
 
 /// Where the machine id is read from.
 const MACHINE_ID_FILE: &str = "/etc/machine-id";

@@ -6,7 +6,7 @@ use std::io;
 use std::path::{Path, PathBuf};
 
 use super::error::{Error, Result};
-use super::files::atomic_write;
+use crate::files::atomic_write;
 
 /// File in the data directory holding the password `passwd` set.
 const PASSWORD_FILE: &str = "password";

@@ -1,10 +1,10 @@
-//! Facts about the real machine: `sysinfo(2)`, `statvfs(3)` and the
-//! machine id, through nix's safe wrappers.
+//! Facts about the real machine: `sysinfo(2)` and the machine id,
+//! through nix's safe wrappers.
 
 use std::io;
 use std::path::Path;
 
-use nix::sys::{statvfs, sysinfo};
+use nix::sys::sysinfo;
 
 /// What `sysinfo()` reports, in the units the response uses.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -34,14 +34,6 @@ pub(crate) fn sysinfo() -> io::Result<SysInfo> {
     })
 }
 
-/// Bytes available to unprivileged users on the filesystem holding `path`.
-// The statvfs counters are 32-bit on some targets.
-#[allow(clippy::useless_conversion)]
-pub(crate) fn available_bytes(path: &Path) -> io::Result<u64> {
-    let st = statvfs::statvfs(path)?;
-    Ok(u64::from(st.blocks_available()).saturating_mul(u64::from(st.fragment_size())))
-}
-
 /// The machine id from `file` (normally `/etc/machine-id`), trimmed.
 pub(crate) fn machine_id(file: &Path) -> io::Result<String> {
     let id = std::fs::read_to_string(file)?.trim().to_owned();
@@ -61,12 +53,6 @@ mod tests {
         assert!(info.uptime_s > 0);
         assert!(info.ram_total_mb > 0 && info.ram_free_mb <= info.ram_total_mb);
         assert!(info.procs > 0);
-    }
-
-    #[test]
-    fn statvfs_fails_for_a_missing_path() {
-        assert!(available_bytes(Path::new("/")).unwrap() > 0);
-        assert!(available_bytes(Path::new("/no/such/dir")).is_err());
     }
 
     #[test]

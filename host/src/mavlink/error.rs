@@ -7,7 +7,7 @@
 
 use lluav_core::Ret;
 
-use crate::onboard::Refusal;
+use crate::vehicle::Refusal;
 
 /// A command the MAVLink vehicle did not carry out.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]

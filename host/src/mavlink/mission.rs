@@ -13,7 +13,7 @@ use super::autopilot::Flavour;
 use super::error::MavError;
 use super::geo::Global;
 use super::protocol::mission_item;
-use crate::onboard::Ned;
+use crate::vehicle::Ned;
 
 /// Most missions kept; the oldest go first.
 const MAX_KEPT: usize = 64;

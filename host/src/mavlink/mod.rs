@@ -1,5 +1,5 @@
 //! The MAVLink vehicle: a real autopilot (PX4, ArduPilot) on a serial port
-//! or UDP/TCP, the second [`VehicleBackend`] beside the simulator
+//! or UDP/TCP, the second [`Vehicle`] beside the simulator
 //! (`lluavd --mavlink ADDRESS`, DESIGN.md "Backends").
 //!
 //! A link task (module `link`) reads everything the autopilot sends into a
@@ -77,9 +77,10 @@ use tokio::sync::oneshot;
 pub use error::MavError;
 pub use protocol::Timing;
 
-use crate::companion::Files;
-use crate::daemon::Ready;
-use crate::onboard::{Ned, Refusal, Snapshot, VehicleBackend};
+use crate::files::Files;
+use crate::vehicle::Ready;
+use crate::vehicle::mission::{self as mission_json, Fence};
+use crate::vehicle::{Ned, Refusal, Snapshot, Vehicle};
 use autopilot::{Flavour, Mode, ParamValue};
 use link::{Link, Stream};
 use mission::{Mission, Waypoint};
@@ -123,7 +124,7 @@ type Outcome = Result<Answer, MavError>;
 struct Pending {
     cmd: CommandId,
     session: SessionId,
-    /// Filled by the future [`VehicleBackend::ready`] returned.
+    /// Filled by the future [`Vehicle::ready`] returned.
     slot: Arc<Mutex<Option<Outcome>>>,
     /// The task's answer, until `ready` takes it.
     rx: Option<oneshot::Receiver<Outcome>>,
@@ -376,8 +377,7 @@ impl MavlinkVehicle {
                 .read_client_file(p, MAX_MISSION_FILE)
                 .map_err(|e| MavError::from_refusal(&e))?,
         };
-        let parsed = crate::sim::mission::parse(&text, &crate::sim::mission::Fence::NONE)
-            .map_err(|e| MavError::from_refusal(&e))?;
+        let parsed = mission_json::parse(&text, &Fence::NONE).map_err(|e| MavError::from_refusal(&e))?;
         let waypoints: Vec<Waypoint> = parsed
             .iter()
             .map(|w| Waypoint {
@@ -582,7 +582,7 @@ fn check_param_name(name: &str) -> Result<(), MavError> {
     Ok(())
 }
 
-impl VehicleBackend for MavlinkVehicle {
+impl Vehicle for MavlinkVehicle {
     fn armed(&self) -> bool {
         self.link.shared().tel.armed()
     }

@@ -15,7 +15,7 @@ use lluav_core::Fields;
 use super::autopilot::{Encoding, Flavour, Phase};
 use super::geo::Global;
 use super::protocol::Target;
-use crate::onboard::Ned;
+use crate::vehicle::Ned;
 
 /// Without a heartbeat for this long the link is lost (DESIGN.md).
 pub const LINK_TIMEOUT_MS: i64 = 3000;

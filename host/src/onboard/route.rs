@@ -1,4 +1,7 @@
-//! Which side of [`super::Onboard`] owns each command.
+//! Which side of [`super::Onboard`] owns each command: the command
+//! table's section decides ([`Section::Map`] and [`Section::System`] are
+//! the companion computer's, every other section the vehicle's), except
+//! for the commands in [`EXCEPTIONS`], written once below.
 
 use lluav_core::{CommandId as C, Section};
 
@@ -13,71 +16,64 @@ pub enum Owner {
     Both,
 }
 
-/// The owner of `id`: by the command table's section, with the
-/// exceptions the module doc of [`super`] lists.
-pub fn owner(id: C) -> Owner {
-    match id {
-        C::State | C::Statics | C::Hud1 => Owner::Both,
-        C::SetMaplocate | C::RebootAp | C::KillLivox => Owner::Vehicle,
-        C::Ver | C::Sysinfo | C::Diskusage | C::Machineid | C::GetSubmapInfo | C::Showmsg => Owner::Companion,
-        C::Savebag | C::ClearBags | C::ClearImages | C::ListImagedir | C::RmImagedir => Owner::Companion,
-        C::TestNotif | C::CvTest | C::Savemsg | C::Passwd => Owner::Companion,
-        _ => match id.spec().section {
-            Section::Map | Section::System => Owner::Companion,
-            _ => Owner::Vehicle,
-        },
+/// Declares [`EXCEPTIONS`] and writes its list into its documentation,
+/// so the list a reader sees is the one the daemon routes by.
+macro_rules! exceptions {
+    ($($owner:ident: [$($cmd:ident),* $(,)?];)*) => {
+        /// The commands whose owner is not their section's:
+        $(
+            #[doc = concat!("- ", stringify!($owner), ":", $(" [`", stringify!($cmd), "`](C::", stringify!($cmd), ")"),*)]
+        )*
+        pub const EXCEPTIONS: &[(C, Owner)] = &[$($((C::$cmd, Owner::$owner),)*)*];
+    };
+}
+
+exceptions! {
+    // One `state` object (and `statics`, `hud1`) that both fill.
+    Both: [State, Statics, Hud1];
+    // The autopilot's and the lidar's, though listed with the machine.
+    Vehicle: [SetMaplocate, RebootAp, KillLivox];
+    // The machine's, though listed with telemetry, missions and devices.
+    Companion: [
+        Ver, Sysinfo, Diskusage, Machineid, GetSubmapInfo, Showmsg, Savebag, ClearBags, ClearImages,
+        ListImagedir, RmImagedir, TestNotif, CvTest, Savemsg, Passwd,
+    ];
+}
+
+/// The owner of a section's commands.
+fn by_section(section: Section) -> Owner {
+    match section {
+        Section::Map | Section::System => Owner::Companion,
+        _ => Owner::Vehicle,
     }
+}
+
+/// The owner of `id`.
+pub fn owner(id: C) -> Owner {
+    EXCEPTIONS
+        .iter()
+        .find(|(c, _)| *c == id)
+        .map_or_else(|| by_section(id.spec().section), |&(_, owner)| owner)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use lluav_core::TABLE;
 
     #[test]
-    fn the_companion_owns_the_machine_and_the_vehicle_owns_flight() {
-        let companion: Vec<_> = TABLE
-            .iter()
-            .filter(|s| owner(s.id) == Owner::Companion)
-            .map(|s| s.name)
-            .collect();
-        assert_eq!(
-            companion,
-            [
-                "ver",
-                "sysinfo",
-                "diskusage",
-                "machineid",
-                "get_submap_info",
-                "showmsg",
-                "savemap",
-                "set_mappath",
-                "list_maps",
-                "rm_map",
-                "savebag",
-                "passwd",
-                "reboot_node",
-                "reboot_system",
-                "poweroff_system",
-                "prepare_poweroff",
-                "reboot_dlo",
-                "restart_dlo",
-                "cv_test",
-                "clear_bags",
-                "clear_images",
-                "list_imagedir",
-                "rm_imagedir",
-                "test_notif",
-                "savemsg",
-            ]
-        );
-        for spec in TABLE.iter().filter(|s| {
-            matches!(
-                s.section,
-                Section::Flight | Section::Mission | Section::Led | Section::Apron | Section::Lidar
-            )
-        }) {
-            assert_eq!(owner(spec.id), Owner::Vehicle, "{}", spec.name);
+    fn every_exception_differs_from_its_section_and_is_listed_once() {
+        for (i, &(id, owner)) in EXCEPTIONS.iter().enumerate() {
+            assert_ne!(
+                by_section(id.spec().section),
+                owner,
+                "{} needs no exception",
+                id.name()
+            );
+            assert!(
+                EXCEPTIONS[..i].iter().all(|(c, _)| *c != id),
+                "{} listed twice",
+                id.name()
+            );
         }
     }
 }

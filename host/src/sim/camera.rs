@@ -6,7 +6,7 @@
 use lluav_core::{Args, Command, CommandId as C, Fields};
 
 use super::error::{SimError, SimResult};
-use crate::companion::Files;
+use crate::files::Files;
 
 /// Side of the simulated camera frames, pixels.
 const FRAME_SIDE: usize = 8;

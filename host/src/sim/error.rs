@@ -6,8 +6,9 @@
 
 use lluav_core::Ret;
 
-use crate::companion;
-use crate::onboard::Refusal;
+use crate::files;
+use crate::vehicle::Refusal;
+use crate::vehicle::mission::BadMission;
 
 /// A command the simulated vehicle did not carry out.
 #[derive(Debug, thiserror::Error)]
@@ -63,8 +64,8 @@ pub enum SimError {
         max: f64,
     },
     /// A mission payload the simulator cannot fly.
-    #[error("Invalid arguments: bad mission: {0}")]
-    Mission(String),
+    #[error(transparent)]
+    Mission(#[from] BadMission),
     /// No mission with this external id.
     #[error("Unknown mission: {0}")]
     UnknownMission(u32),
@@ -74,9 +75,9 @@ pub enum SimError {
     /// Something the command names does not exist (yet).
     #[error("Not found: {0}")]
     NotFound(String),
-    /// The companion computer's files refused or failed.
+    /// The data directory refused a path or failed.
     #[error(transparent)]
-    Files(#[from] companion::Error),
+    Files(#[from] files::Error),
     /// A command the vehicle does not own reached it: a routing bug,
     /// answered as a fault.
     #[error("Unhandled exception")]
@@ -86,7 +87,7 @@ pub enum SimError {
 impl SimError {
     /// An I/O failure while doing `what`.
     pub(crate) fn io(what: impl Into<String>, err: std::io::Error) -> Self {
-        SimError::Files(companion::Error::io(what, err))
+        SimError::Files(files::Error::io(what, err))
     }
 }
 
@@ -96,8 +97,8 @@ impl Refusal for SimError {
             SimError::Refused(_)
             | SimError::UnknownParam(_)
             | SimError::ParamType { .. }
-            | SimError::ParamRange { .. }
-            | SimError::Mission(_) => Ret::InvalidArgs,
+            | SimError::ParamRange { .. } => Ret::InvalidArgs,
+            SimError::Mission(e) => e.ret(),
             SimError::Files(e) => e.ret(),
             SimError::NotOwned(_) => Ret::Unhandled,
             _ => Ret::Failed,

@@ -16,7 +16,7 @@ use std::collections::VecDeque;
 use std::f64::consts::PI;
 
 use super::error::{SimError, SimResult};
-use crate::onboard::Ned;
+use crate::vehicle::Ned;
 
 /// Longest simulated step, s.
 const MAX_STEP_S: f64 = 0.05;

@@ -1,4 +1,4 @@
-//! The simulated vehicle: `lluavd`'s default [`VehicleBackend`].
+//! The simulated vehicle: `lluavd`'s default [`Vehicle`].
 //!
 //! The commands [`crate::onboard`] routes to the vehicle are carried out
 //! here against a simulated vehicle: an FSM with timed transitions
@@ -20,7 +20,7 @@ mod camera;
 mod devices;
 mod error;
 mod flight;
-pub(crate) mod mission;
+mod mission;
 mod params;
 mod pilot;
 mod reports;
@@ -31,8 +31,8 @@ use std::time::Duration;
 
 use lluav_core::{Command, CommandId, Context, Failure, Fields, Section, Step};
 
-use crate::companion::Files;
-use crate::onboard::{Refusal, Snapshot, VehicleBackend};
+use crate::files::Files;
+use crate::vehicle::{Refusal, Snapshot, Vehicle};
 use camera::Camera;
 use devices::Devices;
 use error::{SimError, SimResult};
@@ -160,7 +160,7 @@ impl Simulator {
     }
 }
 
-impl VehicleBackend for Simulator {
+impl Vehicle for Simulator {
     fn armed(&self) -> bool {
         self.flight.mode().armed()
     }

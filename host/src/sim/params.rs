@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use lluav_core::{Args, Command, CommandId, Fields};
 
 use super::error::{SimError, SimResult};
-use crate::companion::atomic_write;
+use crate::files::atomic_write;
 
 /// File in the data directory holding the saved parameters.
 pub(crate) const PARAMS_FILE: &str = "params.json";

@@ -6,10 +6,11 @@ use lluav_core::{Args, Command, CommandId as C, Fields, LandPoint, Payload};
 use super::Simulator;
 use super::error::{SimError, SimResult};
 use super::flight::{Leg, Mode, Then};
-use super::mission::{self, Fence, Mission, Run, Source, Status};
+use super::mission::{Mission, Run, Source, Status};
 use super::params::Key;
-use crate::companion::Files;
-use crate::onboard::Ned;
+use crate::files::Files;
+use crate::vehicle::Ned;
+use crate::vehicle::mission::{self, Fence};
 
 /// Largest mission or waypoint file a client may point at, bytes.
 pub(super) const MAX_MISSION_FILE: u64 = 1 << 20;

@@ -9,11 +9,11 @@ use super::Simulator;
 use super::devices::{Airframe, round1};
 use super::error::{SimError, SimResult};
 use super::flight::{Mode, altitude, distance};
-use super::mission::{self, Fence};
 use super::params::Key;
 use super::pilot::MAX_MISSION_FILE;
-use crate::companion::Files;
-use crate::onboard::Ned;
+use crate::files::Files;
+use crate::vehicle::Ned;
+use crate::vehicle::mission::{self, Fence};
 
 /// Free space below which the disk preflight check fails, MiB.
 const MIN_FREE_MB: u64 = 100;

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use lluav_core::{Auth, Message, Outcome, Server, Session};
 use lluav_host::companion::CompanionConfig;
-use lluav_host::daemon::Vehicle;
+use lluav_host::daemon;
 use lluav_host::onboard::Onboard;
 use lluav_host::recent_log::RecentLog;
 use lluav_host::sim::Simulator;
@@ -54,7 +54,7 @@ impl Harness {
             log: log.clone(),
             password_pinned: password.is_some(),
         };
-        let onboard = Onboard::simulator(companion, speed).expect("backend opens");
+        let onboard = daemon::simulated(companion, speed).expect("backend opens");
         let password = password.map(str::to_owned).or_else(|| onboard.stored_password());
         let auth = Auth::new(password.as_deref()).expect("auth");
         let mut server = Server::new(onboard, clock as fn() -> i64, auth);

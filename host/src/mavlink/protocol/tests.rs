@@ -8,7 +8,7 @@ use ::mavlink::dialects::ardupilotmega::{
 };
 
 use super::*;
-use crate::onboard::Refusal;
+use crate::vehicle::Refusal;
 
 const AUTOPILOT: Target = Target {
     system: 1,

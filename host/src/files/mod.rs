@@ -17,10 +17,12 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use nix::fcntl::OFlag;
+use nix::sys::statvfs;
 
-use super::error::{Error, Result};
-use super::system;
 use crate::recent_log::utc_date;
+
+mod error;
+pub use error::{Error, Result};
 
 /// Subdirectories of the data directory.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -169,8 +171,16 @@ impl Files {
     /// Bytes available to unprivileged users on the data directory's
     /// filesystem.
     pub fn free_bytes(&self) -> Result<u64> {
-        system::available_bytes(&self.root).map_err(|e| Error::io("statvfs()", e))
+        available_bytes(&self.root).map_err(|e| Error::io("statvfs()", e))
     }
+}
+
+/// Bytes available to unprivileged users on the filesystem holding `path`.
+// The statvfs counters are 32-bit on some targets.
+#[allow(clippy::useless_conversion)]
+pub(crate) fn available_bytes(path: &Path) -> io::Result<u64> {
+    let st = statvfs::statvfs(path)?;
+    Ok(u64::from(st.blocks_available()).saturating_mul(u64::from(st.fragment_size())))
 }
 
 /// The directory cameras write into on the UTC day of `now_ms`: the one
@@ -337,6 +347,12 @@ pub(crate) fn clear_oldest(
 mod tests {
     use super::*;
     use std::os::unix::fs::symlink;
+
+    #[test]
+    fn statvfs_fails_for_a_missing_path() {
+        assert!(available_bytes(Path::new("/")).unwrap() > 0);
+        assert!(available_bytes(Path::new("/no/such/dir")).is_err());
+    }
 
     #[test]
     fn symlinks_leaving_the_data_dir_are_refused() {

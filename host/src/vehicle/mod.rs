@@ -1,0 +1,154 @@
+//! The vehicle seam: what every vehicle (the simulator, an autopilot over
+//! MAVLink) is to the rest of lluavd, and what the vehicles share.
+//!
+//! - [`Vehicle`]: the flying half of the daemon's backend. It answers the
+//!   commands [`crate::onboard`] routes to the vehicle, may leave one
+//!   pending while it waits for something outside, is advanced in time and
+//!   flushed at exit.
+//! - [`Ned`] and [`Snapshot`]: positions, and what the companion computer
+//!   needs to know of the vehicle.
+//! - `Refusal` (crate-internal): an error that knows its `ret`.
+//! - [`mission`]: DESIGN.md's mission JSON, read the same way by every
+//!   vehicle.
+//!
+//! This module sits at the bottom of the vehicle side: it depends on
+//! lluav-core and the data directory ([`crate::files`]) only.
+
+pub mod mission;
+
+use std::future::Future;
+use std::io;
+use std::pin::Pin;
+use std::time::Duration;
+
+use lluav_core::{Command, Context, Failure, Fields, Ret, SessionId, Step, Ticket};
+
+use crate::files::{self, Files};
+
+/// A point or vector in NED metres (x north, y east, z down).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Ned {
+    /// North.
+    pub x: f64,
+    /// East.
+    pub y: f64,
+    /// Down.
+    pub z: f64,
+}
+
+impl Ned {
+    /// A point.
+    pub fn new(x: f64, y: f64, z: f64) -> Ned {
+        Ned { x, y, z }
+    }
+
+    /// Writes `x`, `y`, `z` members as `f32`: coordinates are `f32` on the
+    /// wire (DESIGN.md, "Numbers in responses").
+    pub fn write(self, o: &mut Fields<'_>) {
+        o.f32("x", self.x as f32)
+            .f32("y", self.y as f32)
+            .f32("z", self.z as f32);
+    }
+}
+
+/// What the companion computer needs to know of the vehicle: for bags,
+/// maps and version reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Snapshot {
+    /// The backend's name in `ver` (`simulator`, `mavlink`).
+    pub backend: &'static str,
+    /// The vehicle's own clock, seconds (simulated time, autopilot boot
+    /// time, ...), for bag samples.
+    pub time_s: f64,
+    /// Position, NED metres.
+    pub position: Ned,
+    /// Heading, radians.
+    pub yaw: f64,
+    /// The state machine's state, as in `state.fsm`.
+    pub fsm: &'static str,
+    /// Distance flown since start, metres (map keyframes are spaced by it).
+    pub distance_m: f64,
+}
+
+/// Completes when a pending command's ticket is ready (see
+/// [`Vehicle::ready`]).
+pub type Ready = Pin<Box<dyn Future<Output = ()> + Send>>;
+
+/// A vehicle: the flying half of the daemon's backend.
+///
+/// It answers the commands [`crate::onboard`] gives the vehicle, with the
+/// same contract as [`lluav_core::Backend::execute`]; `files` is the
+/// companion computer's data directory, for mission files and camera
+/// output.
+pub trait Vehicle: Send + 'static {
+    /// Whether the motors are armed right now (the armed gate).
+    fn armed(&self) -> bool;
+
+    /// Carries out a command the vehicle owns, or starts it and answers
+    /// [`Step::Pending`].
+    fn execute(
+        &mut self,
+        cmd: &Command<'_>,
+        ctx: &Context,
+        files: &Files,
+        out: &mut Fields<'_>,
+    ) -> Result<Step, Failure>;
+
+    /// Finishes a command left pending (see [`lluav_core::Backend::finish`]).
+    fn finish(&mut self, ticket: Ticket, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
+        let _ = (ticket, ctx, out);
+        Err(Failure::unhandled())
+    }
+
+    /// A future that completes once the command `execute` left pending
+    /// with `ticket` can be finished. It is awaited with the vehicle
+    /// unlocked, so other sessions are served meanwhile; then
+    /// [`lluav_core::Server::resume`] asks for the answer. A vehicle that
+    /// never answers [`Step::Pending`] keeps the default, which is ready at
+    /// once.
+    fn ready(&mut self, ticket: Ticket) -> Ready {
+        let _ = ticket;
+        Box::pin(std::future::ready(()))
+    }
+
+    /// A session's connection ended.
+    fn session_closed(&mut self, session: SessionId) {
+        let _ = session;
+    }
+
+    /// Writes the vehicle's members of the `state` object: at least
+    /// `armed`, `fsm` and `lock_mode` (see [`crate::onboard`]).
+    fn write_state(&self, ctx: &Context, state: &mut Fields<'_>);
+
+    /// What the companion computer needs to know of the vehicle now.
+    fn snapshot(&self) -> Snapshot;
+
+    /// Advances the vehicle by `dt` of wall time.
+    fn tick(&mut self, dt: Duration);
+
+    /// Persists anything pending.
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+/// A refusal or failure that knows its `ret` (DESIGN.md, "Errors"); its
+/// `Display` is the whole message.
+pub(crate) trait Refusal: std::fmt::Display {
+    /// The `ret` it is answered with.
+    fn ret(&self) -> Ret;
+
+    /// Answers it: the message is written whole into the response.
+    fn fail(&self, out: &mut Fields<'_>) -> Failure {
+        if self.ret() == Ret::Unhandled {
+            tracing::error!(error = %self, "command reached a backend that does not own it");
+        }
+        out.fail(self.ret(), format_args!("{self}"))
+    }
+}
+
+impl Refusal for files::Error {
+    fn ret(&self) -> Ret {
+        files::Error::ret(self)
+    }
+}
