@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use clap::Parser;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::net::{Limits, Policy};
 
@@ -97,10 +97,16 @@ pub struct Cli {
     /// connection code: for the Autobahn|Testsuite only.
     #[arg(long, hide = true)]
     pub echo: bool,
+    /// Check the settings (flags, environment, --config FILE), print the
+    /// effective ones with secrets masked and exit: 0 when usable, 2 with
+    /// what is wrong.
+    #[arg(long)]
+    pub check_config: bool,
 }
 
 /// The config file: every field optional, unknown fields refused.
-#[derive(Debug, Default, Deserialize)]
+/// (`--check-config` prints the effective settings in this form.)
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct FileConfig {
     /// As `--bind`.

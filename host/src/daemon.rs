@@ -9,6 +9,7 @@
 
 use std::future::Future;
 use std::net::SocketAddr;
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -21,6 +22,7 @@ use crate::companion::{self, Companion, CompanionConfig};
 use crate::config::Settings;
 use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
 use crate::net::{self, Echo, Handler};
+use crate::notify::{self, Counted, Link, Notifier, Status};
 use crate::onboard::Onboard;
 use crate::recent_log::RecentLog;
 use crate::sim::{SimConfig, Simulator};
@@ -190,6 +192,7 @@ pub struct Daemon<V> {
     listener: TcpListener,
     net: net::Config,
     mode: Mode<V>,
+    notifier: Option<Notifier>,
 }
 
 /// `lluavd`'s default backend: the companion computer and the simulated
@@ -282,7 +285,12 @@ impl<V: Vehicle> Daemon<V> {
                 addr: settings.bind,
                 source,
             })?;
-        Ok(Daemon { listener, net, mode })
+        Ok(Daemon {
+            listener,
+            net,
+            mode,
+            notifier: None,
+        })
     }
 
     /// The address actually bound (the port, when 0 was asked for).
@@ -293,6 +301,13 @@ impl<V: Vehicle> Daemon<V> {
     /// The URL scheme clients use: `wss` with TLS, else `ws`.
     pub fn scheme(&self) -> &'static str {
         if self.net.tls.is_some() { "wss" } else { "ws" }
+    }
+
+    /// Tells systemd about the daemon while it serves: the watchdog and
+    /// `STATUS=` (see [`crate::notify`]).
+    pub fn notify(mut self, notifier: Option<Notifier>) -> Self {
+        self.notifier = notifier;
+        self
     }
 
     /// Serves until `shutdown` completes, then lets connections finish and
@@ -307,9 +322,22 @@ impl<V: Vehicle> Daemon<V> {
             Mode::Protocol(server) => Arc::new(Mutex::new(*server)),
         };
         let ticker = tokio::spawn(tick(Arc::clone(&server)));
-        let handler = Arc::new(Protocol::new(Arc::clone(&server)));
+        let handler = Arc::new(Counted::new(Protocol::new(Arc::clone(&server))));
+        let sessions = handler.counter();
+        let vehicle = Arc::clone(&server);
+        // The uplink's broker state goes into `uplink` once lluavd has one.
+        let keep_alive = self.notifier.map(|notifier| {
+            tokio::spawn(notify::keep_alive(notifier, move || Status {
+                sessions: sessions.load(Ordering::Relaxed),
+                autopilot: lock(&vehicle).backend().link_up(SystemClock.unix_ms()).into(),
+                uplink: Link::None,
+            }))
+        });
         net::serve(self.listener, handler, self.net, shutdown).await;
         ticker.abort();
+        if let Some(task) = keep_alive {
+            task.abort();
+        }
         let flushed = tokio::task::spawn_blocking(move || lock(&server).backend_mut().flush()).await;
         match flushed {
             Ok(Ok(())) => {
@@ -327,7 +355,7 @@ impl<V: Vehicle> Daemon<V> {
 
 /// The login state: the configured password, else the vehicle's stored
 /// one, else none — which is refused beyond loopback unless allowed.
-fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth, DaemonError> {
+pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth, DaemonError> {
     let password = settings.password.clone().or(stored);
     if password.is_none() && !settings.bind.ip().is_loopback() && !settings.allow_no_password {
         return Err(DaemonError::NoPassword(settings.bind));

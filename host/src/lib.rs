@@ -15,18 +15,24 @@
 //!   trait, positions, the mission JSON), implemented by the simulator
 //!   ([`sim`]) and by an autopilot over MAVLink ([`mavlink`]);
 //! - [`files`]: the data directory, the only place client paths reach;
-//! - [`recent_log`]: the log `showmsg` shows.
+//! - [`recent_log`]: the log `showmsg` shows;
+//! - [`notify`], [`journal`], [`check_config`]: running as a systemd
+//!   service (readiness, watchdog and status; log lines for the journal;
+//!   `--check-config`).
 
 #![warn(missing_docs)]
 
+pub mod check_config;
 pub mod client;
 pub mod companion;
 pub mod config;
 pub mod console;
 pub mod daemon;
 pub mod files;
+pub mod journal;
 pub mod mavlink;
 pub mod net;
+pub mod notify;
 pub mod onboard;
 pub mod recent_log;
 pub mod sim;

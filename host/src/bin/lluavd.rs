@@ -3,7 +3,10 @@
 //! Prints exactly one line to stdout, `listening on ws://HOST:PORT`, once it
 //! accepts connections; logs go to stderr (`RUST_LOG`, default `info`) and
 //! into the buffer `showmsg` reads. SIGINT or SIGTERM: stop accepting,
-//! answer what is in flight, flush, exit 0.
+//! answer what is in flight, flush, exit 0. Under systemd it speaks
+//! sd_notify (`READY=1` after that line, the watchdog, `STATUS=`,
+//! `STOPPING=1`) and logs with the journal's priority prefixes;
+//! `--check-config` checks and prints the settings instead of serving.
 
 use std::io::{IsTerminal as _, Write as _};
 use std::process::ExitCode;
@@ -11,6 +14,8 @@ use std::process::ExitCode;
 use clap::Parser;
 use lluav_host::config::{Cli, Settings};
 use lluav_host::daemon::{Daemon, DaemonError};
+use lluav_host::journal::{self, JournalFormat};
+use lluav_host::notify::Notifier;
 use lluav_host::recent_log::RecentLog;
 use lluav_host::vehicle::Vehicle;
 use tokio::signal::unix::{Signal, SignalKind, signal};
@@ -23,7 +28,11 @@ use tracing_subscriber::{EnvFilter, fmt};
 const RECENT_LOG_LINES: usize = 1000;
 
 fn main() -> ExitCode {
-    let settings = match Settings::from_cli(Cli::parse()) {
+    let cli = Cli::parse();
+    if cli.check_config {
+        return lluav_host::check_config::run(cli);
+    }
+    let settings = match Settings::from_cli(cli) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("lluavd: {e}");
@@ -31,13 +40,21 @@ fn main() -> ExitCode {
         }
     };
     let log = RecentLog::new(RECENT_LOG_LINES);
+    // Under systemd, the journal stamps each line and reads its priority
+    // from a `<N>` prefix.
+    let journal = journal::stderr_is_journal();
     tracing_subscriber::registry()
         .with(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")))
-        .with(
+        .with((!journal).then(|| {
             fmt::layer()
                 .with_writer(std::io::stderr)
-                .with_ansi(std::io::stderr().is_terminal()),
-        )
+                .with_ansi(std::io::stderr().is_terminal())
+        }))
+        .with(journal.then(|| {
+            fmt::layer()
+                .with_writer(std::io::stderr)
+                .event_format(JournalFormat::default())
+        }))
         .with(log.layer())
         .init();
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
@@ -53,6 +70,7 @@ fn main() -> ExitCode {
 async fn run(settings: Settings, log: RecentLog) -> ExitCode {
     // Signal handlers go in before the "listening" line, so that a
     // supervisor may signal as soon as it has read it.
+    let notifier = Notifier::from_env();
     let (term, int) = match (signal(SignalKind::terminate()), signal(SignalKind::interrupt())) {
         (Ok(t), Ok(i)) => (t, i),
         (Err(e), _) | (_, Err(e)) => {
@@ -67,10 +85,11 @@ async fn run(settings: Settings, log: RecentLog) -> ExitCode {
                 Daemon::open_mavlink(&settings, log, &address).await,
                 &settings,
                 signals,
+                notifier,
             )
             .await
         }
-        None => serve(Daemon::open(&settings, log).await, &settings, signals).await,
+        None => serve(Daemon::open(&settings, log).await, &settings, signals, notifier).await,
     }
 }
 
@@ -79,9 +98,10 @@ async fn serve<V: Vehicle>(
     opened: Result<Daemon<V>, DaemonError>,
     settings: &Settings,
     (mut term, mut int): (Signal, Signal),
+    notifier: Option<Notifier>,
 ) -> ExitCode {
     let daemon = match opened {
-        Ok(d) => d,
+        Ok(d) => d.notify(notifier.clone()),
         Err(e) => {
             eprintln!("lluavd: {e}");
             return ExitCode::from(2);
@@ -105,10 +125,16 @@ async fn serve<V: Vehicle>(
         return ExitCode::FAILURE;
     }
     drop(stdout);
+    if let Some(n) = &notifier {
+        n.ready(&format!("listening on {}://{addr}", daemon.scheme()));
+    }
     let shutdown = async move {
         tokio::select! {
             _ = term.recv() => info!("SIGTERM: shutting down"),
             _ = int.recv() => info!("SIGINT: shutting down"),
+        }
+        if let Some(n) = &notifier {
+            n.stopping();
         }
     };
     match daemon.run(shutdown).await {

@@ -681,4 +681,8 @@ impl Vehicle for MavlinkVehicle {
     }
 
     fn tick(&mut self, _dt: Duration) {}
+
+    fn link_up(&self, now_ms: i64) -> Option<bool> {
+        Some(self.link.shared().tel.link_up(now_ms))
+    }
 }

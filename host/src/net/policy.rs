@@ -72,6 +72,20 @@ impl Origin {
             port: port.unwrap_or(default_port),
         })
     }
+
+    /// The origin as `--allow-origin` takes it, without a default port.
+    fn text(&self) -> String {
+        let default_port = if matches!(self.scheme.as_str(), "https" | "wss") {
+            443
+        } else {
+            80
+        };
+        if self.port == default_port {
+            format!("{}://{}", self.scheme, self.host)
+        } else {
+            format!("{}://{}:{}", self.scheme, self.host, self.port)
+        }
+    }
 }
 
 /// Splits `host[:port]` (`[v6]:port` for IPv6) and lowercases the host.
@@ -148,6 +162,19 @@ impl Policy {
             }
         }
         Ok(policy)
+    }
+
+    /// The allowed origins as `--allow-origin` takes them (`*` for any).
+    pub fn origins(&self) -> Vec<String> {
+        let any = self.any_origin.then(|| "*".to_owned());
+        any.into_iter()
+            .chain(self.origins.iter().map(Origin::text))
+            .collect()
+    }
+
+    /// The extra host names allowed in `Host`.
+    pub fn hosts(&self) -> Vec<String> {
+        self.hosts.clone()
     }
 
     /// Checks an upgrade's `Host` and `Origin` headers; `local` is the

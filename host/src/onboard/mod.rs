@@ -150,6 +150,11 @@ impl<V: Vehicle> Onboard<V> {
     pub fn ready(&mut self, ticket: Ticket) -> Ready {
         self.vehicle.ready(ticket)
     }
+
+    /// Whether the link to the autopilot is up (see [`Vehicle::link_up`]).
+    pub fn link_up(&self, now_ms: i64) -> Option<bool> {
+        self.vehicle.link_up(now_ms)
+    }
 }
 
 #[cfg(test)]

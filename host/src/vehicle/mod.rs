@@ -130,6 +130,13 @@ pub trait Vehicle: Send + 'static {
     fn flush(&mut self) -> io::Result<()> {
         Ok(())
     }
+
+    /// Whether the link to the autopilot is up at `now_ms`; `None` for a
+    /// vehicle without one (the simulator). For systemd's `STATUS=`.
+    fn link_up(&self, now_ms: i64) -> Option<bool> {
+        let _ = now_ms;
+        None
+    }
 }
 
 /// A refusal or failure that knows its `ret` (DESIGN.md, "Errors"); its
