@@ -5,21 +5,23 @@
 # what it needs under target/ (idempotently):
 #   - the Python SDK (maturin wheel, pytest against the real lluavd);
 #   - the browser console (Node's test runner, headless Chromium + Selenium);
-#   - the MAVLink backend against real third-party peers (MAVSDK, pymavlink).
+#   - the MAVLink backend against real third-party peers (MAVSDK, pymavlink);
+#   - deploy: the Debian packages (amd64, arm64) and the systemd unit, the
+#     packaged binaries against the integration tests (arm64 under qemu).
 # lluavd is built once (debug, the binary `cargo test` already built) and
 # handed to every suite. Extra suites can be skipped by naming the ones to
-# run: `bash scripts/test.sh rust python` (default: all four).
+# run: `bash scripts/test.sh rust python` (default: all five).
 set -euo pipefail
 # shellcheck source=scripts/lib.sh
 . "$(dirname "$0")/lib.sh"
 step() { printf '\n=== %s\n' "$*"; }
 suites=("$@")
-[ ${#suites[@]} -gt 0 ] || suites=(rust python console mavlink)
+[ ${#suites[@]} -gt 0 ] || suites=(rust python console mavlink deploy)
 for suite in "${suites[@]}"; do
     case $suite in
-        rust | python | console | mavlink) ;;
+        rust | python | console | mavlink | deploy) ;;
         *)
-            echo "unknown suite '$suite': rust, python, console or mavlink" >&2
+            echo "unknown suite '$suite': rust, python, console, mavlink or deploy" >&2
             exit 2
             ;;
     esac
@@ -45,6 +47,10 @@ for suite in "${suites[@]}"; do
             step "tests: the MAVLink backend against MAVSDK and pymavlink (scripts/test-mavlink.sh)"
             find_lluavd
             bash scripts/test-mavlink.sh
+            ;;
+        deploy)
+            step "tests: the Debian packages and the systemd unit (scripts/test-deploy.sh; its own === steps)"
+            bash scripts/test-deploy.sh
             ;;
     esac
 done
