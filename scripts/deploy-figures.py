@@ -1,6 +1,8 @@
 """lluavd's start-up as systemd sees it: the time from exec to READY=1 on
-the notification socket (the median and the fastest of RUNS starts), and
-the resident memory of the idle daemon one second after READY=1.
+the notification socket (the median and the fastest of RUNS starts),
+against a baseline measured in the same run, the same binary's
+`lluavd --version` from exec to exit (the cost of starting the process at
+all); and the resident memory of the idle daemon one second after READY=1.
 
 Usage: python3 scripts/deploy-figures.py LLUAVD [RUNS]
 Run it on the architecture the binary is for: under qemu-user the time
@@ -49,18 +51,29 @@ def start_once(binary, measure_rss):
             sock.close()
 
 
+def version_once(binary):
+    start = time.perf_counter()
+    subprocess.run([binary, "--version"], stdout=subprocess.DEVNULL, check=True)
+    return time.perf_counter() - start
+
+
 def main():
     binary = sys.argv[1]
     runs = int(sys.argv[2]) if len(sys.argv) > 2 else 20
     times = []
+    baseline = []
     rss = None
+    # Interleaved, so that load from elsewhere falls on both alike.
     for i in range(runs):
         ready, measured = start_once(binary, measure_rss=(i == 0))
         times.append(ready * 1000)
+        baseline.append(version_once(binary) * 1000)
         rss = measured if measured is not None else rss
+    ready_ms, base_ms = statistics.median(times), statistics.median(baseline)
     print(
-        f"exec to READY=1 ({runs} starts): median {statistics.median(times):.1f} ms, "
-        f"fastest {min(times):.1f} ms"
+        f"exec to READY=1 ({runs} starts): median {ready_ms:.1f} ms, fastest {min(times):.1f} ms; "
+        f"baseline exec to exit of --version: median {base_ms:.1f} ms, fastest {min(baseline):.1f} ms; "
+        f"ratio of medians {ready_ms / base_ms:.1f}"
     )
     print(f"idle RSS 1 s after READY=1: {rss} KiB")
 

@@ -21,7 +21,7 @@ CARGO_ZIGBUILD_VERSION=0.24.1
 ZIGLANG_VERSION=0.15.2
 GLIBC=2.31
 TARGETS=(x86_64-unknown-linux-gnu aarch64-unknown-linux-gnu)
-target_dir=${CARGO_TARGET_DIR:-target}
+target_dir=$(realpath -m -- "${CARGO_TARGET_DIR:-target}")
 tools=$target_dir/deploy
 venv=$tools/venv
 
@@ -38,7 +38,7 @@ if ! { "$venv/bin/cargo-zigbuild" --version 2>/dev/null | grep -qx "cargo-zigbui
         "cargo-zigbuild==$CARGO_ZIGBUILD_VERSION" "ziglang==$ZIGLANG_VERSION"
 fi
 rustup target add "${TARGETS[@]}" >/dev/null
-export PATH=$PWD/$venv/bin:$PWD/$tools/bin:$PATH
+export PATH=$venv/bin:$tools/bin:$PATH
 
 # One cargo run for both targets: the build scripts and proc macros are
 # built once for this machine and the two targets share the cores.

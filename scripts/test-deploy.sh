@@ -20,8 +20,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 step() { printf '\n=== %s\n' "$*"; }
-target_dir=${CARGO_TARGET_DIR:-target}
-work=$PWD/$target_dir/deploy/check
+target_dir=$(realpath -m -- "${CARGO_TARGET_DIR:-target}")
+work=$target_dir/deploy/check
 GLIBC=2.31
 EXPOSURE_THRESHOLD=20 # systemd's scale: 20 is an exposure of 2.0
 passed=0
