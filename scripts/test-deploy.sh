@@ -15,8 +15,9 @@
 #     the emulator's);
 #   - the figures for BENCHMARKS.md "Packages" (sizes, exec to READY=1,
 #     idle RSS, exposure).
-# Needs root (apt, dpkg, mount). Installs qemu-user-static and
-# libc6-arm64-cross when missing.
+# Needs root (apt, dpkg, mount). Installs qemu-user-static,
+# libc6-arm64-cross, systemd (for systemd-analyze), binutils and adduser
+# when missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 step() { printf '\n=== %s\n' "$*"; }
@@ -37,8 +38,15 @@ check() { # check DESCRIPTION COMMAND...
 has_line() { grep -qxF -- "$2" "$1"; }
 has_text() { grep -qF -- "$2" "$1"; }
 
-command -v qemu-aarch64-static >/dev/null && [ -e /usr/aarch64-linux-gnu/lib/ld-linux-aarch64.so.1 ] ||
-    { apt-get update -qq && apt-get install -y -qq qemu-user-static libc6-arm64-cross >/dev/null; }
+missing=()
+command -v qemu-aarch64-static >/dev/null || missing+=(qemu-user-static)
+[ -e /usr/aarch64-linux-gnu/lib/ld-linux-aarch64.so.1 ] || missing+=(libc6-arm64-cross)
+command -v systemd-analyze >/dev/null || missing+=(systemd)
+command -v readelf >/dev/null || missing+=(binutils)
+command -v adduser >/dev/null || missing+=(adduser)
+if [ ${#missing[@]} -gt 0 ]; then
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
 
 step "deploy: build the Debian packages (scripts/package.sh)"
 rm -f "$target_dir"/debian/lluavd_*.deb
