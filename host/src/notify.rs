@@ -250,6 +250,68 @@ mod tests {
         assert_eq!(status.to_string(), "0 sessions; simulated vehicle; uplink down");
     }
 
+    /// Pets received within `window`.
+    fn pets_within(socket: &UnixDatagram, window: Duration) -> usize {
+        let end = std::time::Instant::now() + window;
+        let mut buf = [0u8; 256];
+        let mut pets = 0;
+        while let Some(left) = end.checked_duration_since(std::time::Instant::now()) {
+            socket
+                .set_read_timeout(Some(left.max(Duration::from_millis(1))))
+                .expect("timeout set");
+            match socket.recv(&mut buf) {
+                Ok(n) if buf[..n].starts_with(b"WATCHDOG=1") => pets += 1,
+                Ok(_) => {}
+                Err(_) => break,
+            }
+        }
+        pets
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_vehicle_lock_never_released_stops_the_petting() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("notify");
+        let systemd = UnixDatagram::bind(&path).expect("bound");
+        let notifier = Notifier {
+            socket: Arc::new(UnixDatagram::unbound().expect("socket")),
+            target: Arc::new(UnixAddr::from_pathname(&path).expect("address")),
+            watchdog: Some(Duration::from_millis(20)),
+        };
+        let vehicle = Arc::new(std::sync::Mutex::new(()));
+        let locked = Arc::clone(&vehicle);
+        let task = tokio::spawn(keep_alive(notifier, move || {
+            let _vehicle = locked.lock();
+            Status {
+                sessions: 0,
+                autopilot: Link::None,
+                uplink: Link::None,
+            }
+        }));
+        let probe = systemd.try_clone().expect("clone");
+        let healthy = tokio::task::spawn_blocking(move || pets_within(&probe, Duration::from_millis(300)));
+        assert!(healthy.await.expect("joined") >= 5);
+        // The vehicle's lock held, as by a command that never returns.
+        let probe = systemd.try_clone().expect("clone");
+        let wedge = Arc::clone(&vehicle);
+        let during = tokio::task::spawn_blocking(move || {
+            let _held = wedge.lock();
+            // One pet may already be on its way when the lock is taken.
+            pets_within(&probe, Duration::from_millis(300))
+        });
+        assert!(
+            during.await.expect("joined") <= 1,
+            "petted while the vehicle was wedged"
+        );
+        let probe = systemd.try_clone().expect("clone");
+        let after = tokio::task::spawn_blocking(move || pets_within(&probe, Duration::from_millis(300)));
+        assert!(
+            after.await.expect("joined") >= 5,
+            "petting resumes with the vehicle"
+        );
+        task.abort();
+    }
+
     #[test]
     fn notify_socket_is_a_path_or_an_abstract_name() {
         assert!(target(b"/run/systemd/notify").is_ok());
