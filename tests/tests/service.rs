@@ -41,7 +41,12 @@ impl Systemd {
     fn next(&self) -> (Instant, String) {
         self.socket.set_read_timeout(Some(WAIT)).expect("timeout set");
         let mut buf = [0u8; 4096];
-        let n = self.socket.recv(&mut buf).expect("a notification in time");
+        let n = loop {
+            match self.socket.recv(&mut buf) {
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                other => break other.expect("a notification in time"),
+            }
+        };
         let text = String::from_utf8_lossy(buf.get(..n).unwrap_or_default()).into_owned();
         (Instant::now(), text)
     }
@@ -85,9 +90,14 @@ fn readable_now(stdout: &ChildStdout) -> bool {
         events: libc::POLLIN,
         revents: 0,
     };
-    // SAFETY: one valid pollfd, for a descriptor the child handle owns.
-    let n = unsafe { libc::poll(&mut fd, 1, 0) };
-    n == 1 && fd.revents & libc::POLLIN != 0
+    loop {
+        // SAFETY: one valid pollfd, for a descriptor the child handle owns.
+        let n = unsafe { libc::poll(&mut fd, 1, 0) };
+        let interrupted = std::io::Error::last_os_error().kind() == std::io::ErrorKind::Interrupted;
+        if n != -1 || !interrupted {
+            return n == 1 && fd.revents & libc::POLLIN != 0;
+        }
+    }
 }
 
 fn sigterm(child: &Child) {
