@@ -76,6 +76,15 @@ pub trait Backend {
         Ok(())
     }
 
+    /// Called by `admin_lock`/`admin_unlock` before lock mode becomes `on`,
+    /// so that an adapter can persist it (a daemon that restarts while an
+    /// admin holds the lock comes back locked); an `Err` leaves lock mode
+    /// as it was and is answered instead.
+    fn lock_mode_changed(&mut self, on: bool) -> Result<(), Failure> {
+        let _ = on;
+        Ok(())
+    }
+
     /// Called when a session's connection has ended (e.g. to stop streaming
     /// a setpoint that session set).
     fn session_closed(&mut self, session: SessionId) {

@@ -318,7 +318,9 @@ impl<B: Backend, C: Clock> Server<B, C> {
                 });
             }
             (CommandId::AdminLock | CommandId::AdminUnlock, _) => {
-                self.auth.set_lock_mode(command.id() == CommandId::AdminLock);
+                let on = command.id() == CommandId::AdminLock;
+                self.backend.lock_mode_changed(on)?;
+                self.auth.set_lock_mode(on);
                 out.bool("lock_mode", self.auth.lock_mode());
             }
             (CommandId::Passwd, Args::NewPassword(new)) => self.passwd(session, new)?,

@@ -217,6 +217,22 @@ fn lock_mode_is_vehicle_wide_and_admins_skip_it() {
 }
 
 #[test]
+fn lock_mode_is_handed_to_the_backend_before_it_takes_effect() {
+    let mut s = server(Some("pw"));
+    let mut op = Session::new();
+    send(&mut s, &mut op, "login 1025");
+    send(&mut s, &mut op, "admin_lock");
+    assert_eq!(s.backend().saved_lock_mode, Some(true));
+    s.backend_mut().lock_save_fails = Some(lluav_core::Failure::system("save lock mode: disk full"));
+    let r = send(&mut s, &mut op, "admin_unlock");
+    assert_eq!((r.ret(), r.msg()), (-3, "save lock mode: disk full"));
+    assert!(s.auth().lock_mode(), "a lock that was not saved is not lifted");
+    assert_eq!(s.backend().saved_lock_mode, Some(true));
+    assert_eq!(send(&mut s, &mut op, "admin_unlock").json()["lock_mode"], false);
+    assert_eq!(s.backend().saved_lock_mode, Some(false));
+}
+
+#[test]
 fn passwd_changes_the_vehicle_password_for_every_new_session() {
     let mut s = server(Some("pw"));
     let mut sess = Session::new();

@@ -19,6 +19,10 @@ pub struct MockVehicle {
     /// Make `state` write this many filler bytes.
     pub filler: usize,
     pub saved_password: Option<String>,
+    /// The lock mode last persisted through `lock_mode_changed`.
+    pub saved_lock_mode: Option<bool>,
+    /// Make `lock_mode_changed` fail with this.
+    pub lock_save_fails: Option<Failure>,
 }
 
 impl Backend for MockVehicle {
@@ -53,6 +57,14 @@ impl Backend for MockVehicle {
 
     fn password_changed(&mut self, new: &str) -> Result<(), Failure> {
         self.saved_password = Some(new.to_owned());
+        Ok(())
+    }
+
+    fn lock_mode_changed(&mut self, on: bool) -> Result<(), Failure> {
+        if let Some(f) = self.lock_save_fails.take() {
+            return Err(f);
+        }
+        self.saved_lock_mode = Some(on);
         Ok(())
     }
 }
