@@ -264,7 +264,8 @@ impl<V: Vehicle> Daemon<V> {
     pub async fn with_vehicle(settings: &Settings, vehicle: Option<Onboard<V>>) -> Result<Self, DaemonError> {
         let mode = match vehicle {
             Some(v) => {
-                let auth = auth(settings, v.stored_password())?;
+                let mut auth = auth(settings, v.stored_password())?;
+                auth.set_lock_mode(v.stored_lock_mode());
                 Mode::Protocol(Box::new(Server::new(v, SystemClock, auth)))
             }
             None => Mode::Echo,

@@ -91,6 +91,68 @@ async fn saved_parameters_and_the_password_survive_a_restart() {
     assert_eq!(param_value(&r, "autosleep_after"), 1234, "{r}");
 }
 
+/// Sends `request`, asserting it succeeds; returns the answer.
+async fn ok(c: &mut Conn, request: &str) -> Value {
+    let r = c.request(request).await;
+    assert_eq!(r["ret"], 0, "{request}: {r}");
+    r
+}
+
+/// Starts the daemon over `dir` and reads, as a user, lock mode, map
+/// localisation and the map in use.
+async fn kept_state(dir: &std::path::Path) -> (Lluavd, (Value, Value, Value)) {
+    let daemon = Lluavd::start(dir, &Options::password(PASSWORD));
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    let state = ok(&mut c, "state").await["state"].clone();
+    let map = ok(&mut c, "get_submap_info").await["kfs"]["map_id"].clone();
+    c.close().await;
+    (
+        daemon,
+        (state["lock_mode"].clone(), state["map_locate"].clone(), map),
+    )
+}
+
+#[tokio::test]
+async fn lock_mode_the_map_in_use_and_map_localisation_survive_a_restart_and_a_crash() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    let mut admin = Conn::login(&daemon.url, "1025").await;
+    for request in [
+        "savemap site_a",
+        "set_mappath site_a",
+        "set_maplocate 1",
+        "admin_lock",
+    ] {
+        ok(&mut admin, request).await;
+    }
+    admin.close().await;
+    assert!(daemon.terminate().success());
+
+    let (daemon, kept) = kept_state(dir.path()).await;
+    assert_eq!(kept, (Value::Bool(true), Value::Bool(true), "site_a".into()));
+    let mut user = Conn::login(&daemon.url, PASSWORD).await;
+    let r = user.request("set_param takeoff_alt:3").await;
+    assert_eq!(r["msg"], "CMD not permitted to run in LOCK mode!", "{r}");
+    // Saved when answered, not at shutdown: kill -9 keeps each change.
+    let mut admin = Conn::login(&daemon.url, "1025").await;
+    for request in ["admin_unlock", "set_maplocate 0", "rm_map site_a"] {
+        ok(&mut admin, request).await;
+    }
+    daemon.signal("KILL");
+    assert!(!daemon.wait().success());
+    let (daemon, kept) = kept_state(dir.path()).await;
+    assert_eq!(kept, (Value::Bool(false), Value::Bool(false), Value::Null));
+    let mut admin = Conn::login(&daemon.url, "1025").await;
+    ok(&mut admin, "admin_lock").await;
+    daemon.signal("KILL");
+    assert!(!daemon.wait().success());
+    let (_daemon, kept) = kept_state(dir.path()).await;
+    assert_eq!(
+        kept.0, true,
+        "a crash while an admin holds the lock comes back locked"
+    );
+}
+
 #[tokio::test]
 async fn a_password_pinned_by_the_configuration_survives_passwd_and_a_restart() {
     let dir = tempfile::tempdir().expect("temp dir");

@@ -8,87 +8,82 @@ use std::fs;
 
 use lluav_core::{Args, Command, CommandId, Fields};
 
+use super::Kept;
 use super::error::{Error, Result};
 use super::images::write_entries;
-use crate::files::{self, Area, Files, Kind, atomic_write};
+use crate::files::{self, Area, Files, Kind, Saved, atomic_write};
 use crate::vehicle::Snapshot;
 
 /// Map keyframes are taken every this many metres flown.
 const KEYFRAME_SPACING_M: f64 = 2.0;
-
-/// The localisation map in use.
-#[derive(Debug, Default)]
-pub(super) struct Maps {
-    /// Relative to the map directory.
-    current: Option<String>,
-}
 
 /// Keyframes of the live map: one at the start, one per spacing flown.
 fn keyframes(vehicle: &Snapshot) -> u64 {
     1 + (vehicle.distance_m / KEYFRAME_SPACING_M) as u64
 }
 
-impl Maps {
-    /// `savemap`, `set_mappath`, `list_maps`, `rm_map`.
-    pub(super) fn run(
-        &mut self,
-        cmd: &Command<'_>,
-        files: &Files,
-        now_ms: i64,
-        vehicle: &Snapshot,
-        out: &mut Fields<'_>,
-    ) -> Result {
-        match (cmd.id(), cmd.args()) {
-            (CommandId::Savemap, Args::Name(name)) => save(name, files, now_ms, vehicle, out),
-            (CommandId::SetMappath, Args::Path(path)) => self.choose(path, files, out),
-            (CommandId::RmMap, Args::Name(name)) => self.remove(name, files, out),
-            (CommandId::ListMaps, _) => {
-                let maps = files::entries(&files.area(Area::Maps), Kind::Files)
-                    .map_err(|e| Error::io("list maps", e))?;
-                write_entries(out, "maps", &maps);
-                Ok(())
-            }
-            (id, _) => Err(Error::NotOwned(id.name())),
+/// `savemap`, `set_mappath`, `list_maps`, `rm_map`; the map in use is
+/// `kept.map_path`, saved before it changes.
+pub(super) fn run(
+    cmd: &Command<'_>,
+    files: &Files,
+    now_ms: i64,
+    vehicle: &Snapshot,
+    kept: &mut Saved<Kept>,
+    out: &mut Fields<'_>,
+) -> Result {
+    match (cmd.id(), cmd.args()) {
+        (CommandId::Savemap, Args::Name(name)) => save(name, files, now_ms, vehicle, out),
+        (CommandId::SetMappath, Args::Path(path)) => choose(path, files, kept, out),
+        (CommandId::RmMap, Args::Name(name)) => remove(name, files, kept, out),
+        (CommandId::ListMaps, _) => {
+            let maps = files::entries(&files.area(Area::Maps), Kind::Files)
+                .map_err(|e| Error::io("list maps", e))?;
+            write_entries(out, "maps", &maps);
+            Ok(())
         }
+        (id, _) => Err(Error::NotOwned(id.name())),
     }
+}
 
-    fn choose(&mut self, path: &str, files: &Files, out: &mut Fields<'_>) -> Result {
-        let full = files.within(Area::Maps, path)?;
-        let meta = fs::metadata(&full).map_err(|e| Error::about("stat", path, e))?;
-        if !meta.is_file() {
-            return Err(Error::not_found(format!("{path} (not a map file)")));
-        }
-        self.current = Some(path.to_owned());
-        out.str("map_path", path);
-        Ok(())
+fn choose(path: &str, files: &Files, kept: &mut Saved<Kept>, out: &mut Fields<'_>) -> Result {
+    let full = files.within(Area::Maps, path)?;
+    let meta = fs::metadata(&full).map_err(|e| Error::about("stat", path, e))?;
+    if !meta.is_file() {
+        return Err(Error::not_found(format!("{path} (not a map file)")));
     }
+    kept.update(|k| k.map_path = Some(path.to_owned()))
+        .map_err(|e| Error::io("save the map path", e))?;
+    out.str("map_path", path);
+    Ok(())
+}
 
-    fn remove(&mut self, name: &str, files: &Files, out: &mut Fields<'_>) -> Result {
-        let path = files.named(Area::Maps, name)?;
-        let meta = fs::symlink_metadata(&path).map_err(|e| Error::about("stat", name, e))?;
-        if meta.is_dir() {
-            return Err(Error::not_found(format!("{name} (not a map file)")));
-        }
-        fs::remove_file(&path).map_err(|e| Error::about("remove", name, e))?;
-        if self.current.as_deref() == Some(name) {
-            self.current = None;
-        }
-        tracing::info!(map = name, "map removed");
-        out.str("removed", name);
-        Ok(())
+fn remove(name: &str, files: &Files, kept: &mut Saved<Kept>, out: &mut Fields<'_>) -> Result {
+    let path = files.named(Area::Maps, name)?;
+    let meta = fs::symlink_metadata(&path).map_err(|e| Error::about("stat", name, e))?;
+    if meta.is_dir() {
+        return Err(Error::not_found(format!("{name} (not a map file)")));
     }
+    if kept.get().map_path.as_deref() == Some(name) {
+        kept.update(|k| k.map_path = None)
+            .map_err(|e| Error::io("save the map path", e))?;
+    }
+    fs::remove_file(&path).map_err(|e| Error::about("remove", name, e))?;
+    tracing::info!(map = name, "map removed");
+    out.str("removed", name);
+    Ok(())
+}
 
-    /// Writes `kfs`: the map in use (`null` for the live map) and its
-    /// keyframe count. `hud1` and `get_submap_info` share this one shape.
-    pub(super) fn write_kfs(&self, vehicle: &Snapshot, out: &mut Fields<'_>) {
-        out.object("kfs", |o| {
-            match &self.current {
-                Some(map) => o.str("map_id", map),
-                None => o.null("map_id"),
-            };
-            o.u64("count", keyframes(vehicle));
-        });
-    }
+/// Writes `kfs`: the map in use (`null` for the live map) and its
+/// keyframe count. `hud1` and `get_submap_info` share this one shape.
+pub(super) fn write_kfs(kept: &Kept, vehicle: &Snapshot, out: &mut Fields<'_>) {
+    out.object("kfs", |o| {
+        match &kept.map_path {
+            Some(map) => o.str("map_id", map),
+            None => o.null("map_id"),
+        };
+        o.u64("count", keyframes(vehicle));
+    });
 }
 
 /// Saves the live map as `maps/<name>`: its keyframes and origin.

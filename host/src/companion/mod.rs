@@ -29,13 +29,13 @@ use std::time::Duration;
 use lluav_core::{Command, CommandId, Context, Fields, Section};
 
 use crate::files::Files;
+use crate::files::Saved;
 use crate::recent_log::RecentLog;
 use crate::vehicle::Snapshot;
 use bags::Bags;
 pub use error::Error;
 use error::Result;
 use logs::Logs;
-use maps::Maps;
 use nodes::Nodes;
 pub use nodes::machine_id;
 use password::Password;
@@ -53,13 +53,27 @@ pub struct CompanionConfig {
     pub password_pinned: bool,
 }
 
+/// File in the data directory holding what [`Kept`] keeps.
+const STATE_FILE: &str = "state.json";
+
+/// What the companion keeps across a restart, besides the password.
+#[derive(Clone, Debug, Default, serde::Deserialize, serde::Serialize)]
+#[serde(default)]
+pub(crate) struct Kept {
+    /// Lock mode (`admin_lock`): a daemon that restarts while an admin
+    /// holds the lock comes back locked.
+    pub(crate) lock_mode: bool,
+    /// The map in use (`set_mappath`), relative to the map directory.
+    pub(crate) map_path: Option<String>,
+}
+
 /// The companion computer's state.
 #[derive(Debug)]
 pub struct Companion {
     files: Files,
     logs: Logs,
     password: Password,
-    maps: Maps,
+    kept: Saved<Kept>,
     bags: Bags,
     nodes: Nodes,
 }
@@ -70,11 +84,12 @@ impl Companion {
     pub fn open(cfg: CompanionConfig) -> io::Result<Companion> {
         let files = Files::open(&cfg.data_dir)?;
         let password = Password::load(files.root(), cfg.password_pinned)?;
+        let kept = Saved::load(files.root().join(STATE_FILE))?;
         Ok(Companion {
             files,
             logs: Logs::new(cfg.log),
             password,
-            maps: Maps::default(),
+            kept,
             bags: Bags::default(),
             nodes: Nodes::default(),
         })
@@ -102,7 +117,7 @@ impl Companion {
                 images::run(cmd, files, now_ms, out)
             }
             CommandId::Hud1 | CommandId::GetSubmapInfo => {
-                self.maps.write_kfs(vehicle, out);
+                maps::write_kfs(self.kept.get(), vehicle, out);
                 Ok(())
             }
             CommandId::TestNotif | CommandId::CvTest => {
@@ -111,7 +126,7 @@ impl Companion {
             }
             id => match id.spec().section {
                 Section::State => self.report(id, vehicle, out),
-                Section::Map => self.maps.run(cmd, files, now_ms, vehicle, out),
+                Section::Map => maps::run(cmd, files, now_ms, vehicle, &mut self.kept, out),
                 Section::System => self.system(id, now_ms, out),
                 _ => Err(Error::NotOwned(id.name())),
             },
@@ -179,5 +194,19 @@ impl Companion {
     /// Saves a new password for good, unless the configuration pins it.
     pub fn set_password(&mut self, new: &str) -> Result {
         self.password.set(new)
+    }
+
+    /// Lock mode as last saved.
+    pub fn stored_lock_mode(&self) -> bool {
+        self.kept.get().lock_mode
+    }
+
+    /// Saves lock mode for good, before it takes effect.
+    pub fn set_lock_mode(&mut self, on: bool) -> Result {
+        self.kept
+            .update(|k| k.lock_mode = on)
+            .map_err(|e| Error::io("save lock mode", e))?;
+        tracing::info!(lock_mode = on, "lock mode saved");
+        Ok(())
     }
 }

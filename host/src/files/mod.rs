@@ -22,7 +22,9 @@ use nix::sys::statvfs;
 use crate::recent_log::utc_date;
 
 mod error;
+mod saved;
 pub use error::{Error, Result};
+pub(crate) use saved::Saved;
 
 /// Subdirectories of the data directory.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -20,7 +20,8 @@
 //! vehicle's `comm` and `stat` and the companion's `rosrecord` and
 //! `node_boot_sec`; `hud1` the vehicle's `uav_pos_enu` and `extra` and the
 //! companion's `kfs`. `passwd` reaches the companion through
-//! [`lluav_core::Backend::password_changed`].
+//! [`lluav_core::Backend::password_changed`], and `admin_lock` and
+//! `admin_unlock` through [`lluav_core::Backend::lock_mode_changed`].
 //!
 //! The core answers `login`, `help`, `admin_lock` and `admin_unlock`
 //! itself; they never reach a backend.
@@ -119,6 +120,13 @@ impl<V: Vehicle> Backend for Onboard<V> {
         })
     }
 
+    fn lock_mode_changed(&mut self, on: bool) -> Result<(), Failure> {
+        self.companion.set_lock_mode(on).map_err(|e| {
+            tracing::warn!(error = %e, "lock mode not changed");
+            Failure::fmt(e.ret(), format_args!("{e}"))
+        })
+    }
+
     fn session_closed(&mut self, session: SessionId) {
         self.vehicle.session_closed(session);
     }
@@ -143,6 +151,12 @@ impl<V: Vehicle> Onboard<V> {
     /// configured.
     pub fn stored_password(&self) -> Option<String> {
         self.companion.stored_password()
+    }
+
+    /// Lock mode as `admin_lock`/`admin_unlock` last saved it, restored at
+    /// start.
+    pub fn stored_lock_mode(&self) -> bool {
+        self.companion.stored_lock_mode()
     }
 
     /// Completes once the pending `ticket` can be finished (see

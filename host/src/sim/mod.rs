@@ -31,7 +31,7 @@ use std::time::Duration;
 
 use lluav_core::{Command, CommandId, Context, Failure, Fields, Section, Step};
 
-use crate::files::Files;
+use crate::files::{Files, Saved};
 use crate::vehicle::{Refusal, Snapshot, Vehicle};
 use camera::Camera;
 use devices::Devices;
@@ -50,6 +50,17 @@ pub struct SimConfig {
     /// A stable per-machine seed for the simulated autopilot's id
     /// (`show_apguid2`), e.g. the machine id.
     pub seed: String,
+}
+
+/// File in the data directory holding what [`Kept`] keeps.
+const STATE_FILE: &str = "sim_state.json";
+
+/// What the simulated vehicle keeps across a restart, besides parameters.
+#[derive(Clone, Debug, Default, serde::Deserialize, serde::Serialize)]
+#[serde(default)]
+struct Kept {
+    /// Map localisation (`set_maplocate`).
+    map_locate: bool,
 }
 
 /// Switches the vehicle's commands turn on and off.
@@ -71,6 +82,7 @@ pub struct Simulator {
     /// Simulated time of the autopilot's last (re)boot, s.
     ap_boot_s: f64,
     params: Params,
+    kept: Saved<Kept>,
     flight: Flight,
     missions: Missions,
     switches: Switches,
@@ -88,6 +100,11 @@ impl Simulator {
             ));
         }
         let params = Params::load(cfg.data_dir.join(PARAMS_FILE))?;
+        let kept = Saved::<Kept>::load(cfg.data_dir.join(STATE_FILE))?;
+        let switches = Switches {
+            map_locate: kept.get().map_locate,
+            ..Switches::default()
+        };
         tracing::info!(speed = cfg.speed, "simulator ready");
         Ok(Simulator {
             speed: cfg.speed,
@@ -95,9 +112,10 @@ impl Simulator {
             sim_s: 0.0,
             ap_boot_s: 0.0,
             params,
+            kept,
             flight: Flight::default(),
             missions: Missions::default(),
-            switches: Switches::default(),
+            switches,
             devices: Devices::default(),
             camera: Camera::default(),
         })
@@ -137,7 +155,13 @@ impl Simulator {
             (_, Section::State) => self.report(cmd.id(), out),
             (CommandId::Tunnelfly, _) => flag(&mut self.switches.tunnelfly, "tunnelfly", out),
             (CommandId::AutosleepEnable, _) => flag(&mut self.switches.autosleep, "autosleep", out),
-            (CommandId::SetMaplocate, _) => flag(&mut self.switches.map_locate, "map_locate", out),
+            (CommandId::SetMaplocate, _) => {
+                let on = matches!(cmd.args(), lluav_core::Args::Flag(true));
+                self.kept
+                    .update(|k| k.map_locate = on)
+                    .map_err(|e| SimError::io("save map localisation", e))?;
+                flag(&mut self.switches.map_locate, "map_locate", out)
+            }
             (CommandId::PreflightEnable, _) => flag(&mut self.switches.preflight, "preflight_enabled", out),
             (_, Section::Flight) => self.fly(cmd, files, out),
             (_, Section::Mission) => self.mission(cmd, ctx.now_ms, files, out),
