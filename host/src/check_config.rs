@@ -124,6 +124,7 @@ pub fn effective(s: &Settings) -> FileConfig {
         sim_speed: Some(s.sim_speed),
         mavlink: s.mavlink.clone(),
         allow_no_password: Some(s.allow_no_password),
+        allow_default_admin: Some(s.allow_default_admin),
         max_message: Some(l.max_message),
         max_connections: Some(l.max_connections),
         max_sessions_per_ip: Some(l.max_sessions_per_ip),

@@ -48,6 +48,10 @@ pub struct Cli {
     /// Allow listening beyond loopback without a password.
     #[arg(long)]
     pub allow_no_password: bool,
+    /// Allow listening beyond loopback with the public admin login value
+    /// 1025 (instead of `admin_password` in the config file).
+    #[arg(long)]
+    pub allow_default_admin: bool,
     /// Largest message accepted, in bytes; larger closes with 1009. [default: 65536]
     #[arg(long, value_name = "BYTES")]
     pub max_message: Option<usize>,
@@ -121,6 +125,8 @@ pub struct FileConfig {
     pub mavlink: Option<String>,
     /// As `--allow-no-password`.
     pub allow_no_password: Option<bool>,
+    /// As `--allow-default-admin`.
+    pub allow_default_admin: Option<bool>,
     /// As `--max-message`.
     pub max_message: Option<usize>,
     /// As `--max-connections`.
@@ -212,6 +218,8 @@ pub struct Settings {
     pub mavlink: Option<String>,
     /// Whether listening beyond loopback without a password is allowed.
     pub allow_no_password: bool,
+    /// Whether listening beyond loopback with the public admin value is allowed.
+    pub allow_default_admin: bool,
     /// Connection limits.
     pub limits: Limits,
     /// The Origin/Host policy.
@@ -291,6 +299,7 @@ impl Settings {
             data_dir,
             sim_speed,
             allow_no_password: cli.allow_no_password || file.allow_no_password.unwrap_or(false),
+            allow_default_admin: cli.allow_default_admin || file.allow_default_admin.unwrap_or(false),
             limits,
             policy,
             tls,
@@ -407,7 +416,7 @@ mod tests {
         assert_eq!(s.bind, DEFAULT_BIND);
         assert_eq!(s.admin_password, "1025");
         assert_eq!(s.logout_password, "0315");
-        assert!(!s.allow_no_password);
+        assert!(!s.allow_no_password && !s.allow_default_admin);
         assert!(s.console);
     }
 

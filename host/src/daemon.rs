@@ -155,6 +155,14 @@ pub enum DaemonError {
          bind to 127.0.0.1, or pass --allow-no-password"
     )]
     NoPassword(SocketAddr),
+    /// Listening beyond loopback with the public admin value needs
+    /// `admin_password` or `--allow-default-admin`.
+    #[error(
+        "refusing to listen on {0} with the public admin login value 1025: anyone who can reach it \
+         could log in as admin. Set `admin_password = \"...\"` in the config file (--config FILE), \
+         bind to 127.0.0.1, or pass --allow-default-admin"
+    )]
+    PublicAdmin(SocketAddr),
     /// The password or the special login values break the rules.
     #[error("invalid password settings: {0}")]
     Password(&'static str),
@@ -355,11 +363,17 @@ impl<V: Vehicle> Daemon<V> {
 }
 
 /// The login state: the configured password, else the vehicle's stored
-/// one, else none — which is refused beyond loopback unless allowed.
+/// one, else none — which is refused beyond loopback unless allowed, as
+/// the public admin value is.
 pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth, DaemonError> {
     let password = settings.password.clone().or(stored);
-    if password.is_none() && !settings.bind.ip().is_loopback() && !settings.allow_no_password {
+    let beyond_loopback = !settings.bind.ip().is_loopback();
+    if password.is_none() && beyond_loopback && !settings.allow_no_password {
         return Err(DaemonError::NoPassword(settings.bind));
+    }
+    let public_admin = settings.admin_password == lluav_core::session::DEFAULT_ADMIN_PASSWORD;
+    if public_admin && beyond_loopback && !settings.allow_default_admin {
+        return Err(DaemonError::PublicAdmin(settings.bind));
     }
     let lockout_ms = |d: Duration| u32::try_from(d.as_millis()).unwrap_or(u32::MAX);
     Auth::with_specials(

@@ -2,7 +2,8 @@
 //! Origin and Host policy against cross-site WebSocket hijacking and DNS
 //! rebinding, plain HTTP kept away from the protocol, password guessing
 //! throttled per address across connections, `wss://` from the `lluav`
-//! command line, and the warning about the public admin value.
+//! command line, and the public admin value (refused beyond loopback unless
+//! allowed, then warned about).
 
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -283,18 +284,26 @@ fn startup_log(d: &Lluavd) -> String {
 }
 
 #[test]
-fn a_public_admin_value_beyond_loopback_is_warned_about_once_at_start() {
+fn a_public_admin_value_beyond_loopback_is_refused_unless_allowed_and_then_warned_about() {
     let dir = tempfile::tempdir().expect("temp dir");
     // Bound to every interface (the test talks to it over loopback only).
-    let d = Lluavd::try_start(dir.path(), &Options::password(PASSWORD), &["--bind", "0.0.0.0:0"])
+    let every = ["--bind", "0.0.0.0:0"];
+    let refused = Lluavd::try_start(dir.path(), &Options::password(PASSWORD), &every);
+    let Err((status, stderr)) = refused else {
+        panic!("lluavd listened on 0.0.0.0 with the public admin value");
+    };
+    assert_eq!(status.and_then(|s| s.code()), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("admin_password") && stderr.contains("--allow-default-admin"),
+        "the refusal says what to do: {stderr}"
+    );
+    let allowed = Options::password(PASSWORD).with_args(&["--allow-default-admin"]);
+    let d = Lluavd::try_start(dir.path(), &allowed, &every)
         .unwrap_or_else(|(_, e)| panic!("lluavd did not start: {e}"));
     let stderr = startup_log(&d);
     assert_eq!(stderr.matches("admin_password").count(), 1, "{stderr}");
     drop(d);
-    let config = dir.path().join("lluavd.toml");
-    std::fs::write(&config, "admin_password = \"9y7x\"\n").expect("config written");
-    let options = Options::password(PASSWORD).with_args(&["--config", config.to_str().expect("UTF-8 path")]);
-    let d = Lluavd::try_start(&dir.path().join("data"), &options, &["--bind", "0.0.0.0:0"])
+    let d = Lluavd::try_start(&dir.path().join("data"), &own_admin_value(dir.path()), &every)
         .unwrap_or_else(|(_, e)| panic!("lluavd did not start: {e}"));
     let stderr = startup_log(&d);
     assert!(!stderr.contains("admin_password"), "{stderr}");
@@ -302,5 +311,47 @@ fn a_public_admin_value_beyond_loopback_is_warned_about_once_at_start() {
     assert!(
         !startup_log(&local).contains("admin_password"),
         "no warning on loopback"
+    );
+}
+
+/// Options with a config file that sets the admin value.
+fn own_admin_value(dir: &std::path::Path) -> Options {
+    let config = dir.join("lluavd.toml");
+    std::fs::write(&config, "admin_password = \"9y7x\"\n").expect("config written");
+    Options::password(PASSWORD).with_args(&["--config", config.to_str().expect("UTF-8 path")])
+}
+
+#[tokio::test]
+async fn with_its_own_admin_value_1025_is_an_ordinary_wrong_password() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = Lluavd::try_start(
+        &dir.path().join("data"),
+        &own_admin_value(dir.path()),
+        &["--bind", "0.0.0.0:0"],
+    )
+    .unwrap_or_else(|(_, e)| panic!("lluavd did not start: {e}"));
+    let url = format!("ws://127.0.0.1:{}", d.addr.port());
+    let mut c = Conn::connect(&url).await;
+    for _ in 0..2 {
+        assert_eq!(c.request("login guess").await["msg"], "Wrong password!");
+    }
+    assert_eq!(
+        c.request("login 1025").await["msg"],
+        "Wrong password!",
+        "no admin"
+    );
+    for _ in 0..2 {
+        assert_eq!(c.request("login guess").await["msg"], "Wrong password!");
+    }
+    assert_eq!(
+        c.close_code().await,
+        Some(1008),
+        "1025 counted: the fifth wrong password in a row closes the session"
+    );
+    assert_eq!(login_once(&url, "1025").await, THROTTLED);
+    assert_eq!(
+        login_once(&url, "9y7x").await,
+        THROTTLED,
+        "the address is locked out"
     );
 }

@@ -276,7 +276,7 @@ fn check_config_prints_the_effective_settings_with_secrets_masked() {
         dir.path(),
         "good.toml",
         "bind = \"0.0.0.0:53001\"\npassword = \"hunter22\"\nmax_connections = 64\n\
-         mavlink = \"serial:/dev/ttyAMA0:921600\"\n",
+         mavlink = \"serial:/dev/ttyAMA0:921600\"\nadmin_password = \"9y7x\"\n",
     );
     let out = check_config(&[
         "--config",
@@ -293,7 +293,7 @@ fn check_config_prints_the_effective_settings_with_secrets_masked() {
     );
     assert!(text.contains("\nbind = \"0.0.0.0:53001\"\n"), "{text}");
     assert!(text.contains("\npassword = \"********\"\n"), "{text}");
-    assert!(!text.contains("hunter22"), "{text}");
+    assert!(!text.contains("hunter22") && !text.contains("9y7x"), "{text}");
     assert!(text.contains("\nmax_connections = 32\n"), "the flag wins: {text}");
     assert!(
         text.contains("\nmavlink = \"serial:/dev/ttyAMA0:921600\"\n"),
@@ -314,6 +314,10 @@ fn check_config_refuses_what_the_daemon_would_with_exit_status_2() {
         ("bind = \"nowhere\"\n", "invalid config file"),
         ("mavlink = \"/dev/ttyAMA0\"\n", "--mavlink must be"),
         ("password = \"two words\"\n", "invalid password settings"),
+        (
+            "bind = \"0.0.0.0:53001\"\npassword = \"hunter22\"\n",
+            "the public admin login value 1025",
+        ),
         (
             "tls_cert = \"/nonexistent/c.pem\"\ntls_key = \"/nonexistent/k.pem\"\n",
             "cannot serve wss://",

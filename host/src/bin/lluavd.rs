@@ -147,7 +147,8 @@ async fn serve<V: Vehicle>(
 }
 
 /// The admin login value `1025` is in the public spec: beyond loopback,
-/// anyone who can reach the port could use it.
+/// anyone who can reach the port could use it (lluavd starts so only with
+/// `--allow-default-admin`).
 fn warn_about_public_admin_value(settings: &Settings) {
     let public = settings.admin_password == lluav_core::session::DEFAULT_ADMIN_PASSWORD;
     if public && !settings.echo && !settings.bind.ip().is_loopback() {
