@@ -74,7 +74,8 @@ pub fn check(settings: &Settings) -> Result<(), CheckError> {
         }
     }
     if let Some(files) = &settings.tls {
-        crate::net::tls::acceptor(&files.cert, &files.key).map_err(DaemonError::from)?;
+        crate::net::tls::acceptor(&files.cert, &files.key, std::time::SystemTime::now())
+            .map_err(DaemonError::from)?;
     }
     Ok(())
 }

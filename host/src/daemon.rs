@@ -16,10 +16,10 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use lluav_core::{Auth, AuthError, Clock, Message, Outcome, Server, Session};
 use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
-use tracing::{error, info};
+use tracing::{error, info, warn};
 
 use crate::companion::{self, Companion, CompanionConfig};
-use crate::config::Settings;
+use crate::config::{Settings, TlsFiles};
 use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
 use crate::net::{self, Echo, Handler};
 use crate::notify::{self, Counted, Link, Notifier, Status};
@@ -279,7 +279,7 @@ impl<V: Vehicle> Daemon<V> {
             None => Mode::Echo,
         };
         let tls = match &settings.tls {
-            Some(files) => Some(net::tls::acceptor(&files.cert, &files.key)?),
+            Some(files) => Some(tls_acceptor(settings, files)?),
             None => None,
         };
         let net = net::Config {
@@ -391,6 +391,22 @@ pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth, 
             AuthError::Ambiguous => "the password and the admin and logout values must all differ",
         })
     })
+}
+
+/// The `wss://` acceptor, refused when no client would take the
+/// certificate; warns when it names nothing clients reach this daemon by.
+fn tls_acceptor(settings: &Settings, files: &TlsFiles) -> Result<tokio_rustls::TlsAcceptor, DaemonError> {
+    let served = net::tls::acceptor(&files.cert, &files.key, SystemTime::now())?;
+    let names = net::tls::reachable_names(settings.bind.ip(), &settings.policy.hosts());
+    if !served.names_any(names.iter().map(String::as_str)) {
+        warn!(
+            cert = %files.cert.display(),
+            names = %names.join(", "),
+            "the TLS certificate names none of the addresses lluavd is bound to nor any --allow-host: \
+             clients will refuse it unless they reach lluavd by a name it holds"
+        );
+    }
+    Ok(served.acceptor)
 }
 
 /// Advances the vehicle every [`TICK`] by the wall time that really passed.

@@ -23,6 +23,8 @@ def tls_daemon(binary):
         subprocess.run(
             ["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1",
              "-nodes", "-days", "1", "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
+             # A server's certificate, not a CA's: lluavd refuses a CA certificate at start.
+             "-addext", "basicConstraints=critical,CA:FALSE",
              "-keyout", str(key), "-out", str(cert)],
             check=True, capture_output=True,
         )

@@ -327,12 +327,24 @@ impl TestCa {
     /// A server certificate for `localhost` and `127.0.0.1`, written to
     /// `dir` as `server.pem` and `server.key`; returns their paths.
     pub fn issue(&self, dir: &Path) -> (PathBuf, PathBuf) {
-        let names = vec!["localhost".to_owned(), "127.0.0.1".to_owned()];
+        self.issue_with(dir, &["localhost", "127.0.0.1"], |_| {})
+    }
+
+    /// A server certificate for `names`, with `customise` applied to its
+    /// parameters (validity, CA flag), written like [`TestCa::issue`].
+    pub fn issue_with(
+        &self,
+        dir: &Path,
+        names: &[&str],
+        customise: impl FnOnce(&mut rcgen::CertificateParams),
+    ) -> (PathBuf, PathBuf) {
+        let names = names.iter().map(|n| (*n).to_owned()).collect::<Vec<_>>();
         let mut params = rcgen::CertificateParams::new(names).expect("server parameters");
         params
             .distinguished_name
             .push(rcgen::DnType::CommonName, "lluavd test server");
         params.extended_key_usages = vec![rcgen::ExtendedKeyUsagePurpose::ServerAuth];
+        customise(&mut params);
         let key = rcgen::KeyPair::generate().expect("server key");
         let cert = params
             .signed_by(&key, &self.cert, &self.key)

@@ -5,6 +5,7 @@
 //! command line, and the public admin value (refused beyond loopback unless
 //! allowed, then warned about).
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -354,4 +355,69 @@ async fn with_its_own_admin_value_1025_is_an_ordinary_wrong_password() {
         THROTTLED,
         "the address is locked out"
     );
+}
+
+/// Starts lluavd serving `wss://` with the certificate and key in `files`
+/// and further arguments; on failure its exit status and stderr.
+fn start_tls(
+    dir: &Path,
+    (cert, key): &(PathBuf, PathBuf),
+    args: &[&str],
+) -> Result<Lluavd, (Option<i32>, String)> {
+    let options = Options::password(PASSWORD)
+        .with_args(&["--tls-cert", cert.to_str().expect("UTF-8 path")])
+        .with_args(&["--tls-key", key.to_str().expect("UTF-8 path")])
+        .with_args(args);
+    Lluavd::try_start(&dir.join("data"), &options, &[])
+        .map_err(|(status, e)| (status.and_then(|s| s.code()), e))
+}
+
+#[test]
+fn certificates_no_client_accepts_are_refused_at_start_saying_why() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let names = ["localhost", "127.0.0.1"];
+    let issue = |sub: &str, customise: &dyn Fn(&mut rcgen::CertificateParams)| {
+        test_ca().issue_with(&dir.path().join(sub), &names, customise)
+    };
+    let expired = issue("expired", &|p| {
+        (p.not_before, p.not_after) = (rcgen::date_time_ymd(2020, 1, 1), rcgen::date_time_ymd(2021, 1, 1));
+    });
+    let early = issue("early", &|p| {
+        (p.not_before, p.not_after) = (rcgen::date_time_ymd(2090, 1, 1), rcgen::date_time_ymd(2091, 1, 1));
+    });
+    let ca = issue("ca", &|p| {
+        p.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained)
+    });
+    let (mine, other) = (issue("mine", &|_| {}), issue("other", &|_| {}));
+    let mismatched = (mine.0, other.1);
+    for (files, why) in [
+        (&expired, "expired"),
+        (&early, "is not valid before"),
+        (&ca, "is a CA certificate"),
+        (&mismatched, "is not the key of the certificate"),
+    ] {
+        match start_tls(dir.path(), files, &[]) {
+            Ok(_) => panic!("lluavd served a certificate that {why}"),
+            Err((code, stderr)) => {
+                assert_eq!(code, Some(2), "{stderr}");
+                assert!(stderr.contains(why), "the refusal says `{why}`: {stderr}");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_certificate_for_none_of_the_daemons_names_is_warned_about() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let warning = "names none of the addresses";
+    let elsewhere = test_ca().issue_with(&dir.path().join("elsewhere"), &["elsewhere.example"], |_| {});
+    let d = start_tls(dir.path(), &elsewhere, &[]).unwrap_or_else(|(_, e)| panic!("did not start: {e}"));
+    assert_eq!(startup_log(&d).matches(warning).count(), 1, "{}", d.stderr());
+    drop(d);
+    let d = start_tls(dir.path(), &elsewhere, &["--allow-host", "elsewhere.example"])
+        .unwrap_or_else(|(_, e)| panic!("did not start: {e}"));
+    assert!(!startup_log(&d).contains(warning), "{}", d.stderr());
+    let own = test_ca().issue(&dir.path().join("own"));
+    let d = start_tls(dir.path(), &own, &[]).unwrap_or_else(|(_, e)| panic!("did not start: {e}"));
+    assert!(!startup_log(&d).contains(warning), "{}", d.stderr());
 }
