@@ -76,8 +76,8 @@ fn values_the_vehicle_refuses_are_invalid_arguments_and_state_is_minus_one() {
 fn reasons_are_whole_however_long() {
     let mut h = Harness::new(1.0);
     let name = format!("{}.json", "a_very_long_mission_file_name".repeat(5));
-    let msg = h.fails(&format!("mission 1:{name}"), -1);
-    assert_eq!(msg, format!("Not found: {name}"));
+    let msg = h.fails(&format!("mission 1:{name}"), -2);
+    assert_eq!(msg, format!("Invalid arguments: {name} does not exist"));
     assert!(msg.len() > 96, "longer than a cut reason would be");
 }
 
@@ -91,7 +91,10 @@ fn a_failed_stat_other_than_not_found_is_a_system_failure() {
             .starts_with("stat maps/m1/x: Not a directory")
     );
     assert!(h.fails("mission 1:maps/m1/x", -3).starts_with("stat maps/m1/x: "));
-    assert_eq!(h.fails("set_mappath m2", -1), "Not found: m2");
+    assert_eq!(
+        h.fails("set_mappath m2", -2),
+        "Invalid arguments: m2 does not exist"
+    );
 }
 
 #[test]

@@ -156,8 +156,8 @@ fn missions_are_accepted_from_json_or_files_and_refused_with_a_reason() {
             .starts_with("Invalid arguments: bad mission:")
     );
     assert_eq!(
-        h.fails("mission 4:missions/none.json", -1),
-        "Not found: missions/none.json"
+        h.fails("mission 4:missions/none.json", -2),
+        "Invalid arguments: missions/none.json does not exist"
     );
     std::fs::create_dir(h.dir.join("missions")).unwrap();
     std::fs::write(
@@ -177,8 +177,11 @@ fn mw_exec_flies_the_chosen_waypoints_and_records_the_result() {
     h.ok(r#"mission 3:{"waypoints":[{"x":2,"y":0,"z":-2},{"x":2,"y":2,"z":-2},{"x":0,"y":2,"z":-2}]}"#);
     assert_eq!(h.fails("mw_exec 3:1,2", -1), "Vehicle is not flying");
     h.airborne();
-    assert_eq!(h.fails("mw_exec 3:1,7,8", -1), "Unknown waypoint ids: 7,8");
-    assert_eq!(h.fails("mw_exec 4:1", -1), "Unknown mission: 4");
+    assert_eq!(
+        h.fails("mw_exec 3:1,7,8", -2),
+        "Invalid arguments: mission 3 has no waypoint 7,8"
+    );
+    assert_eq!(h.fails("mw_exec 4:1", -2), "Invalid arguments: unknown mission 4");
     assert_eq!(h.ok("mw_exec 3:3,1")["fsm"], "mission");
     assert_eq!(
         h.ok("dump_missionresult 3")["mission_result"]["status"],
@@ -191,8 +194,8 @@ fn mw_exec_flies_the_chosen_waypoints_and_records_the_result() {
     let p = h.state()["position"].clone();
     assert!((p["x"].as_f64().unwrap() - 2.0).abs() < 0.31 && p["y"].as_f64().unwrap().abs() < 0.31);
     assert_eq!(
-        h.fails("dump_missionresult 99", -1),
-        "Not found: result of mission 99"
+        h.fails("dump_missionresult 99", -2),
+        "Invalid arguments: no run of mission 99"
     );
 }
 
@@ -246,10 +249,16 @@ fn maps_are_files_that_can_be_listed_chosen_and_removed() {
     assert_eq!(map["name"], "site_a");
     h.ok("set_mappath site_a");
     assert_eq!(h.ok("get_submap_info")["kfs"]["map_id"], "site_a");
-    assert_eq!(h.fails("set_mappath none", -1), "Not found: none");
+    assert_eq!(
+        h.fails("set_mappath none", -2),
+        "Invalid arguments: none does not exist"
+    );
     h.ok("rm_map site_a");
     assert_eq!(h.ok("get_submap_info")["kfs"]["map_id"], serde_json::Value::Null);
-    assert_eq!(h.fails("rm_map site_a", -1), "Not found: site_a");
+    assert_eq!(
+        h.fails("rm_map site_a", -2),
+        "Invalid arguments: site_a does not exist"
+    );
     assert!(!h.dir.join("maps/site_a").exists());
 }
 
@@ -275,8 +284,8 @@ fn captures_make_image_files_that_can_be_listed_and_removed() {
     h.ok(&format!("rm_imagedir {dir}"));
     assert!(!h.dir.join("images").join(&dir).exists());
     assert_eq!(
-        h.fails(&format!("rm_imagedir {dir}"), -1),
-        format!("Not found: {dir}")
+        h.fails(&format!("rm_imagedir {dir}"), -2),
+        format!("Invalid arguments: {dir} does not exist")
     );
 }
 
@@ -317,18 +326,15 @@ fn a_recording_bag_is_kept_by_clear_bags_and_flushed_on_shutdown() {
 #[test]
 fn siyi_videos_download_into_the_data_dir() {
     let mut h = Harness::new(1.0);
-    assert_eq!(
-        h.fails("siyi_downvideo", -1),
-        "Not found: no video on the SIYI card"
-    );
+    assert_eq!(h.fails("siyi_downvideo", -1), "No video on the SIYI card");
     assert_eq!(h.ok("record")["recording"], true);
     assert_eq!(h.ok("record")["vid"], 1);
     let r = h.ok("siyi_downvideo 1");
     assert!(h.dir.join(r["file"].as_str().unwrap()).is_file());
     h.ok("siyi_format");
     assert_eq!(
-        h.fails("siyi_downvideo 1", -1),
-        "Not found: video 1 on the SIYI card"
+        h.fails("siyi_downvideo 1", -2),
+        "Invalid arguments: no video 1 on the SIYI card"
     );
 }
 

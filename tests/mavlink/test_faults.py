@@ -86,7 +86,7 @@ def test_a_link_that_dies_mid_upload_answers_minus_3(vehicle):
     assert r["ret"] == -3, r
     assert r["msg"].startswith("No answer from the autopilot: mission upload stalled after mission item"), r
     wait_for("link lost", lambda: client.state()["link"] == "lost", timeout=15)
-    assert client.cmd("mw_exec 3:1")["ret"] == -1  # never accepted: unknown
+    assert client.cmd("mw_exec 3:1")["ret"] == -2  # never accepted: an unknown mission
 
 
 def test_a_mission_the_autopilot_refuses_is_invalid_arguments(vehicle):

@@ -179,7 +179,9 @@ async fn every_command_of_the_table_gets_exactly_one_valid_response(scheme: Sche
             Some(i64::from(u8::from(spec.id))),
             "`{frame}`: {r}"
         );
-        assert!(!msg(&r).starts_with("Invalid arguments"), "`{frame}`: {r}");
+        // The grammar holds; the vehicle may still refuse a value (a map
+        // that does not exist is `Invalid arguments: <reason>`).
+        assert!(!msg(&r).starts_with("Invalid arguments, usage"), "`{frame}`: {r}");
         assert_ne!(r["ret"], -100, "`{frame}` hit a fault in the simulator: {r}");
         if spec.id == CommandId::Help {
             let names: Vec<&str> = TABLE.iter().map(|s| s.name).collect();

@@ -39,7 +39,7 @@ fn remove(files: &Files, name: &str, out: &mut Fields<'_>) -> Result {
     let path = files.named(Area::Images, name)?;
     let meta = fs::symlink_metadata(&path).map_err(|e| Error::about("stat", name, e))?;
     if !meta.is_dir() {
-        return Err(Error::not_found(format!("{name} (not an image directory)")));
+        return Err(Error::not_found(format!("{name} is not an image directory")));
     }
     fs::remove_dir_all(&path).map_err(|e| Error::about("remove", name, e))?;
     tracing::info!(dir = name, "image directory removed");

@@ -50,7 +50,7 @@ fn choose(path: &str, files: &Files, kept: &mut Saved<Kept>, out: &mut Fields<'_
     let full = files.within(Area::Maps, path)?;
     let meta = fs::metadata(&full).map_err(|e| Error::about("stat", path, e))?;
     if !meta.is_file() {
-        return Err(Error::not_found(format!("{path} (not a map file)")));
+        return Err(Error::not_found(format!("{path} is not a map file")));
     }
     kept.update(|k| k.map_path = Some(path.to_owned()))
         .map_err(|e| Error::io("save the map path", e))?;
@@ -62,7 +62,7 @@ fn remove(name: &str, files: &Files, kept: &mut Saved<Kept>, out: &mut Fields<'_
     let path = files.named(Area::Maps, name)?;
     let meta = fs::symlink_metadata(&path).map_err(|e| Error::about("stat", name, e))?;
     if meta.is_dir() {
-        return Err(Error::not_found(format!("{name} (not a map file)")));
+        return Err(Error::not_found(format!("{name} is not a map file")));
     }
     if kept.get().map_path.as_deref() == Some(name) {
         kept.update(|k| k.map_path = None)

@@ -7,8 +7,9 @@ use lluav_core::Ret;
 /// A file operation under the data directory that was not carried out.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A named file or directory does not exist.
-    #[error("Not found: {0}")]
+    /// A named file or directory does not exist, or is not what the
+    /// command needs: the reason.
+    #[error("Invalid arguments: {0}")]
     NotFound(String),
     /// A client path resolves outside the data directory (through a link).
     #[error("Refused: {0} leaves the data directory")]
@@ -38,17 +39,17 @@ impl Error {
     /// The `ret` it is answered with (DESIGN.md, "Errors").
     pub fn ret(&self) -> Ret {
         match self {
-            Error::NotFound(_) | Error::Escapes(_) => Ret::Failed,
-            Error::Invalid(_) => Ret::InvalidArgs,
+            Error::Escapes(_) => Ret::Failed,
+            Error::NotFound(_) | Error::Invalid(_) => Ret::InvalidArgs,
             Error::Io { .. } => Ret::SystemCall,
         }
     }
 
-    /// An I/O failure about `name`: not-found is the client's business
-    /// (-1), anything else failed on this machine (-3).
+    /// An I/O failure about `name`: not-found is a wrong request (-2),
+    /// anything else failed on this machine (-3).
     pub(crate) fn about(what: &str, name: &str, err: std::io::Error) -> Self {
         if err.kind() == std::io::ErrorKind::NotFound {
-            Error::NotFound(name.to_owned())
+            Error::NotFound(format!("{name} does not exist"))
         } else {
             Error::io(format!("{what} {name}"), err)
         }

@@ -142,7 +142,7 @@ impl Files {
         let path = self.resolve(rel)?;
         let meta = fs::metadata(&path).map_err(|e| Error::about("stat", rel, e))?;
         if !meta.is_file() {
-            return Err(Error::NotFound(format!("{rel} (not a file)")));
+            return Err(Error::NotFound(format!("{rel} is not a file")));
         }
         if meta.len() > limit {
             return Err(Error::Invalid(format!("{rel} is larger than {limit} bytes")));

@@ -98,7 +98,7 @@ impl Missions {
             .submitted
             .iter()
             .find(|m| m.ext_id == ext_id)
-            .ok_or_else(|| MavError::State(format!("Unknown mission: {ext_id}")))?;
+            .ok_or_else(|| MavError::Invalid(format!("unknown mission {ext_id}")))?;
         let mut missing = Vec::new();
         let picked: Vec<Waypoint> = wp_ids
             .iter()
@@ -113,8 +113,8 @@ impl Missions {
         if missing.is_empty() {
             Ok(picked)
         } else {
-            Err(MavError::State(format!(
-                "Unknown waypoint ids: {}",
+            Err(MavError::Invalid(format!(
+                "mission {ext_id} has no waypoint {}",
                 missing.join(",")
             )))
         }
@@ -163,10 +163,10 @@ impl Missions {
                 out.object("result", |o| write_run(run, o));
                 Ok(())
             }
-            _ => Err(MavError::State(match ext_id {
-                Some(id) => format!("Not found: no run of mission {id}"),
-                None => "Not found: no mission has run".into(),
-            })),
+            _ => Err(match ext_id {
+                Some(id) => MavError::Invalid(format!("no run of mission {id}")),
+                None => MavError::State("No mission has run".into()),
+            }),
         }
     }
 
@@ -342,8 +342,11 @@ mod tests {
         assert_eq!(picked.iter().map(|w| w.id).collect::<Vec<_>>(), [2, 1]);
         assert_eq!(
             m.select(3, &[5]).unwrap_err().to_string(),
-            "Unknown waypoint ids: 5"
+            "Invalid arguments: mission 3 has no waypoint 5"
         );
-        assert_eq!(m.select(4, &[1]).unwrap_err().to_string(), "Unknown mission: 4");
+        assert_eq!(
+            m.select(4, &[1]).unwrap_err().to_string(),
+            "Invalid arguments: unknown mission 4"
+        );
     }
 }

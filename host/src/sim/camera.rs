@@ -116,11 +116,8 @@ impl Camera {
     fn download(&mut self, vid: Option<u32>, files: &Files, out: &mut Fields<'_>) -> SimResult {
         let vid = match vid {
             Some(v) if self.videos.contains(&v) => v,
-            Some(v) => return Err(SimError::NotFound(format!("video {v} on the SIYI card"))),
-            None => *self
-                .videos
-                .last()
-                .ok_or_else(|| SimError::NotFound("no video on the SIYI card".into()))?,
+            Some(v) => return Err(SimError::NotFound(format!("no video {v} on the SIYI card"))),
+            None => *self.videos.last().ok_or(SimError::NoVideo)?,
         };
         let body = format!("simulated SIYI video {vid}\n");
         let file = files.store_video(&format!("siyi_{vid}.video"), body.as_bytes())?;

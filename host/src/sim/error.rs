@@ -67,14 +67,22 @@ pub enum SimError {
     #[error(transparent)]
     Mission(#[from] BadMission),
     /// No mission with this external id.
-    #[error("Unknown mission: {0}")]
+    #[error("Invalid arguments: unknown mission {0}")]
     UnknownMission(u32),
     /// Waypoint ids the mission does not have.
-    #[error("Unknown waypoint ids: {0}")]
-    UnknownWaypoints(String),
-    /// Something the command names does not exist (yet).
-    #[error("Not found: {0}")]
+    #[error("Invalid arguments: mission {ext_id} has no waypoint {ids}")]
+    UnknownWaypoints {
+        /// The mission.
+        ext_id: u32,
+        /// The ids it lacks, comma-separated.
+        ids: String,
+    },
+    /// Something the command names does not exist (yet): the reason.
+    #[error("Invalid arguments: {0}")]
     NotFound(String),
+    /// `siyi_downvideo` without an id while the card holds no video.
+    #[error("No video on the SIYI card")]
+    NoVideo,
     /// The data directory refused a path or failed.
     #[error(transparent)]
     Files(#[from] files::Error),
@@ -97,7 +105,10 @@ impl Refusal for SimError {
             SimError::Refused(_)
             | SimError::UnknownParam(_)
             | SimError::ParamType { .. }
-            | SimError::ParamRange { .. } => Ret::InvalidArgs,
+            | SimError::ParamRange { .. }
+            | SimError::UnknownMission(_)
+            | SimError::UnknownWaypoints { .. }
+            | SimError::NotFound(_) => Ret::InvalidArgs,
             SimError::Mission(e) => e.ret(),
             SimError::Files(e) => e.ret(),
             SimError::NotOwned(_) => Ret::Unhandled,

@@ -227,7 +227,10 @@ impl Missions {
             .map(u32::to_string)
             .collect();
         if !missing.is_empty() {
-            return Err(SimError::UnknownWaypoints(missing.join(",")));
+            return Err(SimError::UnknownWaypoints {
+                ext_id,
+                ids: missing.join(","),
+            });
         }
         Ok(ids.iter().filter_map(|&id| find(id)).collect())
     }
@@ -296,7 +299,7 @@ impl Missions {
             (None, None) => {
                 out.null("mission_result");
             }
-            (None, Some(id)) => return Err(SimError::NotFound(format!("result of mission {id}"))),
+            (None, Some(id)) => return Err(SimError::NotFound(format!("no run of mission {id}"))),
         }
         Ok(())
     }
@@ -372,8 +375,11 @@ mod tests {
         );
         assert_eq!(
             m.select(9, &[1, 7, 8]).unwrap_err().to_string(),
-            "Unknown waypoint ids: 7,8"
+            "Invalid arguments: mission 9 has no waypoint 7,8"
         );
-        assert_eq!(m.select(3, &[1]).unwrap_err().to_string(), "Unknown mission: 3");
+        assert_eq!(
+            m.select(3, &[1]).unwrap_err().to_string(),
+            "Invalid arguments: unknown mission 3"
+        );
     }
 }
