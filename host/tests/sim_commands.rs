@@ -155,17 +155,27 @@ fn mavlink_counts_grow_with_simulated_time() {
 }
 
 #[test]
-fn showmsg_returns_the_newest_log_lines() {
+fn showmsg_returns_the_newest_log_lines_newest_first_as_many_as_fit() {
     let mut h = Harness::new(1.0);
     for i in 0..5 {
         h.log.push(format!("line {i}"));
     }
-    let msgs = h.ok("showmsg 2")["msgs"].clone();
-    assert_eq!(msgs, serde_json::json!(["line 3", "line 4"]));
+    let r = h.ok("showmsg 2");
+    assert_eq!(r["msgs"], serde_json::json!(["line 4", "line 3"]));
+    assert_eq!(r["truncated"], false);
+    let long = "x".repeat(10_000);
+    for _ in 0..10 {
+        h.log.push(long.clone());
+    }
+    let r = h.ok("showmsg 15");
+    assert_eq!(r["truncated"], true, "ten lines of 10 kB do not all fit");
+    let shown = r["msgs"].as_array().unwrap();
+    assert!((1..10).contains(&shown.len()), "{}", shown.len());
+    assert!(shown.iter().all(|l| l == long.as_str()), "the newest lines");
     let r = h.ok("savemsg");
-    assert_eq!(r["count"], 5);
+    assert_eq!(r["count"], 15);
     let saved = std::fs::read_to_string(h.dir.join(r["file"].as_str().unwrap())).unwrap();
-    assert_eq!(saved, "line 0\nline 1\nline 2\nline 3\nline 4\n");
+    assert!(saved.starts_with("line 0\nline 1\nline 2\nline 3\nline 4\nxxx"));
 }
 
 #[test]

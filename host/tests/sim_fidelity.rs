@@ -76,8 +76,8 @@ fn values_the_vehicle_refuses_are_invalid_arguments_and_state_is_minus_one() {
 fn reasons_are_whole_however_long() {
     let mut h = Harness::new(1.0);
     let name = format!("{}.json", "a_very_long_mission_file_name".repeat(5));
-    let msg = h.fails(&format!("mission 1:{name}"), -2);
-    assert_eq!(msg, format!("Invalid arguments: {name} does not exist"));
+    let msg = h.fails(&format!("mission 1:missions/{name}"), -2);
+    assert_eq!(msg, format!("Invalid arguments: missions/{name} does not exist"));
     assert!(msg.len() > 96, "longer than a cut reason would be");
 }
 
@@ -90,7 +90,11 @@ fn a_failed_stat_other_than_not_found_is_a_system_failure() {
         h.fails("set_mappath m1/x", -3)
             .starts_with("stat maps/m1/x: Not a directory")
     );
-    assert!(h.fails("mission 1:maps/m1/x", -3).starts_with("stat maps/m1/x: "));
+    std::fs::write(h.dir.join("missions/m1"), "{}").unwrap();
+    assert!(
+        h.fails("mission 1:missions/m1/x", -3)
+            .starts_with("stat missions/m1/x: ")
+    );
     assert_eq!(
         h.fails("set_mappath m2", -2),
         "Invalid arguments: m2 does not exist"
@@ -135,7 +139,12 @@ fn a_mission_may_be_a_top_level_array_of_waypoints() {
         (Some(5), Some(2))
     );
     assert_eq!(h.ok("mw_list")["waypoints"][1]["yaw"], 0.5);
-    assert!(h.fails("mission 6:[]", -2).ends_with("bad mission: no waypoints"));
+    assert_eq!(h.fails("mission 6:[]", -2), "Invalid arguments: no waypoints");
+    assert_eq!(
+        h.fails("mission 6:[[2,0,-3,0]]", -2),
+        r#"Invalid arguments: waypoint 1: not an object {"x":..,"y":..,"z":..}"#,
+        "an array is never read positionally as a waypoint"
+    );
 }
 
 #[test]

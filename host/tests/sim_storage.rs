@@ -103,7 +103,7 @@ fn passwd_persists_the_password_for_the_next_start() {
 }
 
 #[test]
-fn symlinks_leaving_the_data_dir_are_refused() {
+fn symlinks_leaving_the_client_areas_are_refused() {
     let outside = tempfile::tempdir().unwrap();
     std::fs::write(
         outside.path().join("m.json"),
@@ -112,28 +112,64 @@ fn symlinks_leaving_the_data_dir_are_refused() {
     .unwrap();
     std::fs::create_dir(outside.path().join("imgs")).unwrap();
     let mut h = Harness::new(1.0);
-    symlink(outside.path(), h.dir.join("escape")).unwrap();
+    symlink(outside.path(), h.dir.join("missions/escape")).unwrap();
+    symlink(h.dir.join("params.json"), h.dir.join("missions/params.json")).unwrap();
     symlink(outside.path().join("m.json"), h.dir.join("maps/evil")).unwrap();
     symlink(outside.path(), h.dir.join("maps/escape")).unwrap();
     symlink(outside.path().join("imgs"), h.dir.join("images/evil")).unwrap();
     let refused = |m: String| {
         assert!(
-            m.starts_with("Refused:") && m.ends_with("leaves the data directory"),
+            m.starts_with("Invalid arguments: ")
+                && m.ends_with("leads outside maps/, images/, bags/, logs/ and missions/"),
             "{m}"
         )
     };
-    refused(h.fails("mission 1:escape/m.json", -1));
-    refused(h.fails("ai1_mission t:escape/m.json", -1));
-    refused(h.fails("test_listwp escape/m.json", -1));
-    refused(h.fails("set_mappath escape/m.json", -1));
-    refused(h.fails("rm_map evil", -1));
-    refused(h.fails("savemap evil", -1));
-    refused(h.fails("rm_imagedir evil", -1));
+    refused(h.fails("mission 1:missions/escape/m.json", -2));
+    refused(h.fails("ai1_mission t:missions/escape/m.json", -2));
+    refused(h.fails("test_listwp missions/escape/m.json", -2));
+    refused(h.fails("test_listwp missions/params.json", -2));
+    refused(h.fails("set_mappath escape/m.json", -2));
+    refused(h.fails("rm_map evil", -2));
+    refused(h.fails("savemap evil", -2));
+    refused(h.fails("rm_imagedir evil", -2));
     assert!(outside.path().join("m.json").exists() && outside.path().join("imgs").exists());
     // Links are not listed, so nothing outside is shown or cleared.
     assert_eq!(h.ok("list_maps")["maps"], serde_json::json!([]));
     h.ok("clear_images");
     assert!(outside.path().join("imgs").exists());
+}
+
+#[test]
+fn the_daemons_own_files_are_out_of_reach_and_never_quoted() {
+    let mut h = Harness::new(1.0);
+    h.ok("passwd 12345x");
+    h.ok("set_param takeoff_alt:3");
+    h.ok("save_param 1");
+    for file in ["password", "params.json", "state.json", "sim_state.json"] {
+        for frame in [
+            format!("test_listwp {file}"),
+            format!("mission 1:{file}"),
+            format!("ai1_mission t:{file}"),
+        ] {
+            assert_eq!(
+                h.fails(&frame, -2),
+                format!("Invalid arguments: {file} is not in missions/"),
+                "{frame}"
+            );
+        }
+    }
+    // A client's own file that is not a mission: the reason says where,
+    // never what the file holds.
+    std::fs::write(h.dir.join("missions/notes.json"), r#"{"takeoff_alt": 12345}"#).unwrap();
+    assert_eq!(
+        h.fails("test_listwp missions/notes.json", -2),
+        r#"Invalid arguments: unexpected member (a mission object has only "waypoints")"#
+    );
+    std::fs::write(h.dir.join("missions/bad.json"), "12345x").unwrap();
+    assert_eq!(
+        h.fails("mission 1:missions/bad.json", -2),
+        "Invalid arguments: not JSON (line 1, column 6)"
+    );
 }
 
 #[test]
@@ -147,19 +183,14 @@ fn missions_are_accepted_from_json_or_files_and_refused_with_a_reason() {
     let wps = h.ok("mw_list")["waypoints"].clone();
     assert_eq!(wps[1]["id"], 9);
     assert_eq!(wps[0]["yaw"], 0.5);
-    assert!(
-        h.fails(r#"mission 4:{"waypoints":[{"x":1,"y":2}]}"#, -2)
-            .contains("missing field `z`")
-    );
-    assert!(
-        h.fails(r#"mission 4:{"wp":[]}"#, -2)
-            .starts_with("Invalid arguments: bad mission:")
+    assert_eq!(
+        h.fails(r#"mission 4:{"waypoints":[{"x":1,"y":2}]}"#, -2),
+        r#"Invalid arguments: waypoint 1: missing "z""#
     );
     assert_eq!(
         h.fails("mission 4:missions/none.json", -2),
         "Invalid arguments: missions/none.json does not exist"
     );
-    std::fs::create_dir(h.dir.join("missions")).unwrap();
     std::fs::write(
         h.dir.join("missions/a.json"),
         r#"{"waypoints":[{"x":0,"y":1,"z":-1}]}"#,
@@ -243,7 +274,7 @@ fn maps_are_files_that_can_be_listed_chosen_and_removed() {
         .iter()
         .map(|m| m["name"].clone())
         .collect();
-    assert_eq!(names, ["site_a", "site_b"]);
+    assert_eq!(names, ["site_b", "site_a"], "newest first");
     let map: serde_json::Value =
         serde_json::from_slice(&std::fs::read(h.dir.join("maps/site_a")).unwrap()).unwrap();
     assert_eq!(map["name"], "site_a");
@@ -342,11 +373,11 @@ fn siyi_videos_download_into_the_data_dir() {
 fn test_listwp_reports_each_waypoint_against_the_fence() {
     let mut h = Harness::new(1.0);
     std::fs::write(
-        h.dir.join("wps.json"),
+        h.dir.join("missions/wps.json"),
         r#"{"waypoints":[{"x":1,"y":0,"z":-2},{"x":9000,"y":0,"z":-2}]}"#,
     )
     .unwrap();
-    let r = h.ok("test_listwp wps.json");
+    let r = h.ok("test_listwp missions/wps.json");
     assert_eq!(r["reachable"], false);
     assert_eq!(r["waypoints"][0]["reachable"], true);
     assert!(

@@ -62,7 +62,7 @@ def test_a_flight_with_setpoints_a_mission_and_a_landing(lluavd):
 
 def test_a_mission_from_a_file_and_a_zyhk_flight_on_asyncio(lluavd):
     daemon = lluavd(sim_speed=SIM_SPEED)
-    (daemon.data_dir / "missions").mkdir()
+    (daemon.data_dir / "missions").mkdir(exist_ok=True)
     (daemon.data_dir / "missions" / "square.json").write_text(
         json.dumps({"waypoints": [{"x": 2, "y": 0, "z": -3}, {"x": 2, "y": 2, "z": -3}]})
     )

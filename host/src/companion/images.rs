@@ -8,6 +8,7 @@ use std::fs;
 use lluav_core::{Args, Command, Fields};
 
 use super::error::{Error, Result};
+use super::fit::{fitting, json_str_len, write_strings};
 use crate::files::{self, Area, Entry, Files, Kind, capture_dir};
 
 /// `list_imagedir`, `rm_imagedir`, `clear_images`.
@@ -23,7 +24,8 @@ pub(super) fn run(cmd: &Command<'_>, files: &Files, now_ms: i64, out: &mut Field
     }
 }
 
-/// Lists image directories, newest first, at most `size` of them.
+/// Lists image directories, newest first, at most `size` of them (and as
+/// many as fit).
 fn list(files: &Files, size: Option<u32>, out: &mut Fields<'_>) -> Result {
     let mut dirs = files::entries(&files.area(Area::Images), Kind::Dirs)
         .map_err(|e| Error::io("list image directories", e))?;
@@ -31,7 +33,7 @@ fn list(files: &Files, size: Option<u32>, out: &mut Fields<'_>) -> Result {
     if let Some(n) = size {
         dirs.truncate(usize::try_from(n).unwrap_or(usize::MAX));
     }
-    write_entries(out, "imagedirs", &dirs);
+    write_entries(out, "imagedirs", dirs);
     Ok(())
 }
 
@@ -69,19 +71,19 @@ pub(super) fn clear(
     })
     .map_err(|e| Error::io(format!("clear {}", area.dir_name()), e))?;
     tracing::info!(area = area.dir_name(), removed = removed.len(), "cleared");
-    out.array("removed", |a| {
-        removed.iter().for_each(|n| {
-            a.str(n);
-        })
-    })
-    .u64("available_MB", files.free_bytes()? >> 20);
+    write_strings(out, "removed", removed);
+    out.u64("available_MB", files.free_bytes()? >> 20);
     Ok(())
 }
 
-/// Writes `key` as an array of entries: name, size, files, modification.
-pub(super) fn write_entries(out: &mut Fields<'_>, key: &str, entries: &[Entry]) {
+/// Writes `key` as an array of the entries that fit (name, size, files,
+/// modification), then `truncated`.
+pub(super) fn write_entries(out: &mut Fields<'_>, key: &str, entries: Vec<Entry>) {
+    // `{"name":..,"bytes":..,"files":..,"modified_ms":..}` with every
+    // number at its longest.
+    let (entries, truncated) = fitting(entries, |e| json_str_len(&e.name) + 100);
     out.array(key, |a| {
-        for e in entries {
+        for e in &entries {
             a.object(|o| {
                 o.str("name", &e.name)
                     .u64("bytes", e.bytes)
@@ -89,5 +91,6 @@ pub(super) fn write_entries(out: &mut Fields<'_>, key: &str, entries: &[Entry]) 
                     .i64("modified_ms", e.modified_ms());
             });
         }
-    });
+    })
+    .bool("truncated", truncated);
 }

@@ -4,6 +4,7 @@
 use lluav_core::{Args, Command, Fields};
 
 use super::error::{Error, Result};
+use super::fit::write_strings;
 use crate::files::{Area, Files, atomic_write};
 use crate::recent_log::RecentLog;
 
@@ -21,17 +22,15 @@ impl Logs {
         Logs { log }
     }
 
-    /// `showmsg [count]` and `savemsg`.
+    /// `showmsg [count]` (the last `count` lines, newest first, as many
+    /// as fit) and `savemsg`.
     pub(super) fn run(&self, cmd: &Command<'_>, files: &Files, now_ms: i64, out: &mut Fields<'_>) -> Result {
         match cmd.args() {
             &Args::OptCount(n) => {
                 let n = n.map_or(DEFAULT_SHOWMSG, |n| usize::try_from(n).unwrap_or(usize::MAX));
-                let lines = self.log.recent(n);
-                out.array("msgs", |a| {
-                    lines.iter().for_each(|l| {
-                        a.str(l);
-                    })
-                });
+                let mut lines = self.log.recent(n);
+                lines.reverse();
+                write_strings(out, "msgs", lines);
                 Ok(())
             }
             _ => self.save(files, now_ms, out),

@@ -1,8 +1,9 @@
 //! Maps: files in the map directory `maps/`. Every map path a client gives
 //! (`savemap`, `set_mappath`, `rm_map`) is relative to that directory, so
 //! `savemap m1` then `set_mappath m1` names the same map; `list_maps`
-//! lists the map files directly in it. The map in use and the keyframe
-//! count are the `kfs` object of `hud1` and `get_submap_info`.
+//! lists the map files directly in it, newest first (as many as fit). The
+//! map in use (kept across a restart) and the keyframe count are the `kfs`
+//! object of `hud1` and `get_submap_info`.
 
 use std::fs;
 
@@ -37,9 +38,10 @@ pub(super) fn run(
         (CommandId::SetMappath, Args::Path(path)) => choose(path, files, kept, out),
         (CommandId::RmMap, Args::Name(name)) => remove(name, files, kept, out),
         (CommandId::ListMaps, _) => {
-            let maps = files::entries(&files.area(Area::Maps), Kind::Files)
+            let mut maps = files::entries(&files.area(Area::Maps), Kind::Files)
                 .map_err(|e| Error::io("list maps", e))?;
-            write_entries(out, "maps", &maps);
+            maps.reverse();
+            write_entries(out, "maps", maps);
             Ok(())
         }
         (id, _) => Err(Error::NotOwned(id.name())),

@@ -15,6 +15,7 @@
 
 mod bags;
 mod error;
+mod fit;
 mod images;
 mod logs;
 mod maps;
@@ -28,8 +29,7 @@ use std::time::Duration;
 
 use lluav_core::{Command, CommandId, Context, Fields, Section};
 
-use crate::files::Files;
-use crate::files::Saved;
+use crate::files::{Files, Saved};
 use crate::recent_log::RecentLog;
 use crate::vehicle::Snapshot;
 use bags::Bags;

@@ -11,8 +11,9 @@ pub enum Error {
     /// command needs: the reason.
     #[error("Invalid arguments: {0}")]
     NotFound(String),
-    /// A client path resolves outside the data directory (through a link).
-    #[error("Refused: {0} leaves the data directory")]
+    /// A client path leads, through a link, outside the areas clients may
+    /// reach (`maps/`, `images/`, `bags/`, `logs/`, `missions/`).
+    #[error("Invalid arguments: {0} leads outside maps/, images/, bags/, logs/ and missions/")]
     Escapes(String),
     /// A value that cannot be used (a file too large, not UTF-8).
     #[error("Invalid arguments: {0}")]
@@ -39,8 +40,7 @@ impl Error {
     /// The `ret` it is answered with (DESIGN.md, "Errors").
     pub fn ret(&self) -> Ret {
         match self {
-            Error::Escapes(_) => Ret::Failed,
-            Error::NotFound(_) | Error::Invalid(_) => Ret::InvalidArgs,
+            Error::NotFound(_) | Error::Escapes(_) | Error::Invalid(_) => Ret::InvalidArgs,
             Error::Io { .. } => Ret::SystemCall,
         }
     }

@@ -1,12 +1,16 @@
-//! The data directory: where maps, images, bags, videos, logs and persisted
-//! state live, and the only place client paths may point into. A vehicle
-//! backend reads mission files and stores camera images and videos through
-//! [`Files`] too, so the rules below hold for every backend.
+//! The data directory: where maps, images, bags, videos, logs, missions
+//! and the daemon's own state live. A vehicle backend reads mission files
+//! and stores camera images and videos through [`Files`] too, so the rules
+//! below hold for every backend.
 //!
-//! The core already refuses absolute paths, `..` and unsafe names; here
-//! every client path is joined to the data directory and walked component
-//! by component without following symlinks, and a symlink whose target
-//! leaves the data directory is refused.
+//! Client paths reach only the areas made for them, the subdirectories
+//! `maps/`, `images/`, `bags/`, `videos/`, `logs/` and `missions/`; the
+//! daemon's own files (the password, parameters, saved state,
+//! and whatever else the operator keeps there) are never read, listed or
+//! removed for a client. The core already refuses absolute paths, `..` and
+//! unsafe names; here every client path is joined to its area and walked
+//! component by component without following symlinks, and a symlink whose
+//! target is not inside an area is refused.
 
 use std::ffi::OsString;
 use std::fs::{self, File, OpenOptions};
@@ -39,10 +43,20 @@ pub(crate) enum Area {
     Videos,
     /// Saved log messages.
     Logs,
+    /// Mission files clients put there (`mission`, `ai1_mission`,
+    /// `test_listwp` read them).
+    Missions,
 }
 
 impl Area {
-    const ALL: [Area; 5] = [Area::Maps, Area::Images, Area::Bags, Area::Videos, Area::Logs];
+    const ALL: [Area; 6] = [
+        Area::Maps,
+        Area::Images,
+        Area::Bags,
+        Area::Videos,
+        Area::Logs,
+        Area::Missions,
+    ];
 
     /// The subdirectory's name.
     pub(crate) fn dir_name(self) -> &'static str {
@@ -52,6 +66,7 @@ impl Area {
             Area::Bags => "bags",
             Area::Videos => "videos",
             Area::Logs => "logs",
+            Area::Missions => "missions",
         }
     }
 }
@@ -94,9 +109,10 @@ impl Files {
         self.root.join(area.dir_name())
     }
 
-    /// Resolves a client's relative path inside the data directory. The
-    /// path need not exist; whatever part of it exists is checked.
-    pub(crate) fn resolve(&self, rel: &str) -> Result<PathBuf> {
+    /// Resolves a relative path inside the data directory, refusing
+    /// symlinks whose target is not inside an [`Area`]. The path need not
+    /// exist; whatever part of it exists is checked.
+    fn resolve(&self, rel: &str) -> Result<PathBuf> {
         let mut path = self.root.clone();
         for component in Path::new(rel).components() {
             match component {
@@ -107,7 +123,7 @@ impl Files {
             match fs::symlink_metadata(&path) {
                 Ok(meta) if meta.file_type().is_symlink() => {
                     let target = fs::canonicalize(&path).map_err(|_| Error::Escapes(rel.into()))?;
-                    if !target.starts_with(&self.root) {
+                    if !Area::ALL.iter().any(|&a| target.starts_with(self.area(a))) {
                         return Err(Error::Escapes(rel.into()));
                     }
                 }
@@ -136,10 +152,16 @@ impl Files {
         self.resolve(&format!("{}/{rel}", area.dir_name()))
     }
 
-    /// Reads a client's file (a path relative to the data directory), at
-    /// most `limit` bytes, as UTF-8.
-    pub fn read_client_file(&self, rel: &str, limit: u64) -> Result<String> {
-        let path = self.resolve(rel)?;
+    /// Reads a client's mission file, `missions/<path>` (the client names
+    /// it relative to the data directory), at most `limit` bytes, as UTF-8.
+    /// Errors never show the file's content.
+    pub fn read_mission_file(&self, rel: &str, limit: u64) -> Result<String> {
+        let area = Area::Missions.dir_name();
+        let inside = rel
+            .strip_prefix(area)
+            .and_then(|r| r.strip_prefix('/'))
+            .ok_or_else(|| Error::NotFound(format!("{rel} is not in {area}/")))?;
+        let path = self.within(Area::Missions, inside)?;
         let meta = fs::metadata(&path).map_err(|e| Error::about("stat", rel, e))?;
         if !meta.is_file() {
             return Err(Error::NotFound(format!("{rel} is not a file")));
@@ -357,19 +379,38 @@ mod tests {
     }
 
     #[test]
-    fn symlinks_leaving_the_data_dir_are_refused() {
+    fn symlinks_leaving_the_client_areas_are_refused() {
         let outside = tempfile::tempdir().unwrap();
         fs::write(outside.path().join("secret"), "x").unwrap();
         let dir = tempfile::tempdir().unwrap();
         let data = Files::open(dir.path()).unwrap();
-        symlink(outside.path(), data.root().join("out")).unwrap();
+        fs::write(data.root().join("password"), "12345x").unwrap();
+        let missions = data.area(Area::Missions);
+        symlink(outside.path(), missions.join("out")).unwrap();
+        symlink(data.root().join("password"), missions.join("pw")).unwrap();
         symlink(outside.path().join("secret"), data.area(Area::Maps).join("m")).unwrap();
-        assert!(matches!(data.resolve("out/secret"), Err(Error::Escapes(_))));
         assert!(matches!(data.named(Area::Maps, "m"), Err(Error::Escapes(_))));
-        assert!(matches!(
-            data.read_client_file("out/secret", 10),
-            Err(Error::Escapes(_))
-        ));
+        for path in ["missions/out/secret", "missions/pw"] {
+            assert!(
+                matches!(data.read_mission_file(path, 10), Err(Error::Escapes(_))),
+                "{path}"
+            );
+        }
+    }
+
+    #[test]
+    fn mission_files_are_read_from_missions_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = Files::open(dir.path()).unwrap();
+        fs::write(data.root().join("params.json"), "{}").unwrap();
+        fs::write(data.area(Area::Maps).join("m1"), "{}").unwrap();
+        for path in ["params.json", "maps/m1", "missionsx/a", "missions"] {
+            let e = data.read_mission_file(path, 10).unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                format!("Invalid arguments: {path} is not in missions/")
+            );
+        }
     }
 
     #[test]
@@ -382,12 +423,12 @@ mod tests {
     }
 
     #[test]
-    fn symlinks_within_the_data_dir_are_followed() {
+    fn symlinks_from_one_client_area_into_another_are_followed() {
         let dir = tempfile::tempdir().unwrap();
         let data = Files::open(dir.path()).unwrap();
         fs::write(data.area(Area::Maps).join("real"), "map").unwrap();
-        symlink(data.area(Area::Maps), data.root().join("alias")).unwrap();
-        assert_eq!(data.read_client_file("alias/real", 10).unwrap(), "map");
+        symlink(data.area(Area::Maps), data.area(Area::Missions).join("alias")).unwrap();
+        assert_eq!(data.read_mission_file("missions/alias/real", 10).unwrap(), "map");
     }
 
     #[test]

@@ -374,7 +374,7 @@ impl MavlinkVehicle {
         let text = match payload {
             Payload::Json(s) => (*s).to_owned(),
             Payload::Path(p) => files
-                .read_client_file(p, MAX_MISSION_FILE)
+                .read_mission_file(p, MAX_MISSION_FILE)
                 .map_err(|e| MavError::from_refusal(&e))?,
         };
         let parsed = mission_json::parse(&text, &Fence::NONE).map_err(|e| MavError::from_refusal(&e))?;

@@ -8,6 +8,11 @@ use lluav_core::{Args, Command, CommandId as C, Fields};
 use super::error::{SimError, SimResult};
 use crate::files::Files;
 
+/// Most videos the simulated SIYI card holds: recording on a full card
+/// replaces the oldest, as a camera in loop recording does (and the
+/// `siyi` answer, which lists them, stays small).
+const MAX_VIDEOS: usize = 256;
+
 /// Side of the simulated camera frames, pixels.
 const FRAME_SIDE: usize = 8;
 
@@ -108,6 +113,9 @@ impl Camera {
         out.bool("recording", self.recording);
         if !self.recording {
             self.next_vid += 1;
+            if self.videos.len() >= MAX_VIDEOS {
+                self.videos.remove(0);
+            }
             self.videos.push(self.next_vid);
             out.u64("vid", self.next_vid.into());
         }

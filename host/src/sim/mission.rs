@@ -1,13 +1,29 @@
 //! Missions: the submitted missions (read by [`crate::vehicle::mission`]),
 //! waypoint runs and their results, abort reports, plans and task names.
+//!
+//! What a client stores here has a maximum chosen so that every answer
+//! that reports it fits lluavd's 64 KiB response buffer: a mission holds
+//! at most [`crate::vehicle::mission::MAX_WAYPOINTS`] waypoints (`mw_list`
+//! lists one whole), at most [`MAX_MISSIONS`] missions are kept
+//! (`dump_missionlist` lists them all, paths included), a plan is at most
+//! [`MAX_PLAN`] bytes and a task name [`MAX_TASKNAME`] (`state` reports
+//! both).
 
 use lluav_core::{Args, Command, CommandId, Fields};
 
 use super::error::{SimError, SimResult};
 use super::flight::RouteEvent;
 use crate::vehicle::mission::Waypoint;
-/// Most missions (and results, and reports) kept; the oldest go first.
+
+/// Most missions kept (the oldest go first): `dump_missionlist` of that
+/// many, each with a path of the longest, is under 36 KB.
+pub(crate) const MAX_MISSIONS: usize = 16;
+/// Most runs and abort reports kept; the oldest go first.
 const MAX_KEPT: usize = 64;
+/// Longest plan, bytes.
+pub(crate) const MAX_PLAN: usize = 4096;
+/// Longest task name, bytes.
+pub(crate) const MAX_TASKNAME: usize = 256;
 
 /// Where a mission came from.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -132,8 +148,16 @@ fn same_slot(a: &Mission, b: &Mission) -> bool {
     }
 }
 
-fn push_bounded<T>(v: &mut Vec<T>, item: T) {
-    if v.len() == MAX_KEPT {
+/// Refuses `text` longer than `most` bytes (-2).
+fn at_most(what: &str, text: &str, most: usize) -> SimResult {
+    if text.len() > most {
+        return Err(SimError::Refused(format!("{what} longer than {most} bytes")));
+    }
+    Ok(())
+}
+
+fn push_bounded<T>(v: &mut Vec<T>, item: T, most: usize) {
+    if v.len() >= most {
         v.remove(0);
     }
     v.push(item);
@@ -146,6 +170,7 @@ impl Missions {
     pub(crate) fn run(&mut self, cmd: &Command<'_>, out: &mut Fields<'_>) -> SimResult {
         match (cmd.id(), cmd.args()) {
             (CommandId::Plan, Args::Text(plan)) => {
+                at_most("plan", plan, MAX_PLAN)?;
                 if self.plan_locked {
                     return Err(SimError::PlanLocked);
                 }
@@ -164,6 +189,7 @@ impl Missions {
             }
             (CommandId::DumpMissionresult, &Args::OptCount(ext_id)) => self.write_result(ext_id, out)?,
             (CommandId::SetTaskname, Args::Text(name)) => {
+                at_most("task name", name, MAX_TASKNAME)?;
                 self.taskname = Some((*name).to_owned());
                 out.str("taskname", name);
             }
@@ -188,7 +214,7 @@ impl Missions {
     /// same AI1 task id).
     pub(crate) fn submit(&mut self, mission: Mission) {
         self.missions.retain(|m| !same_slot(m, &mission));
-        push_bounded(&mut self.missions, mission);
+        push_bounded(&mut self.missions, mission, MAX_MISSIONS);
     }
 
     /// The mission with this external id.
@@ -237,7 +263,7 @@ impl Missions {
 
     /// Records a new run.
     pub(crate) fn start_run(&mut self, run: Run) {
-        push_bounded(&mut self.runs, run);
+        push_bounded(&mut self.runs, run, MAX_KEPT);
     }
 
     /// Applies the flight model's route events to the runs.
@@ -280,7 +306,7 @@ impl Missions {
             total,
             at_ms: now_ms,
         };
-        push_bounded(&mut self.reports, report.clone());
+        push_bounded(&mut self.reports, report.clone(), MAX_KEPT);
         report
     }
 

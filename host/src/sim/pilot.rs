@@ -161,7 +161,7 @@ impl Simulator {
                 let (text, source) = match payload {
                     Payload::Json(s) => ((*s).to_owned(), Source::Json),
                     Payload::Path(p) => (
-                        files.read_client_file(p, MAX_MISSION_FILE)?,
+                        files.read_mission_file(p, MAX_MISSION_FILE)?,
                         Source::File((*p).to_owned()),
                     ),
                 };
@@ -169,7 +169,7 @@ impl Simulator {
                 self.submit(*ext_id, source, &text, now_ms, out)
             }
             Args::Ai1Mission { task_id, file } => {
-                let text = files.read_client_file(file, MAX_MISSION_FILE)?;
+                let text = files.read_mission_file(file, MAX_MISSION_FILE)?;
                 out.str("task_id", task_id);
                 self.submit(0, Source::Ai1((*task_id).to_owned()), &text, now_ms, out)
             }

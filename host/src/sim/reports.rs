@@ -214,7 +214,7 @@ impl Simulator {
                 }
             }
             Args::Path(path) => {
-                let text = files.read_client_file(path, MAX_MISSION_FILE)?;
+                let text = files.read_mission_file(path, MAX_MISSION_FILE)?;
                 let verdicts: Vec<_> = mission::parse(&text, &Fence::NONE)?
                     .iter()
                     .map(|w| (w.wp_id(), fence.check(w.ned())))

@@ -3,17 +3,19 @@
 //! flies it, the MAVLink vehicle turns it into mission items.
 
 use lluav_core::{Fields, Ret};
-use serde::Deserialize;
+use serde_json::{Map, Value};
 
 use super::{Ned, Refusal};
 
-/// Most waypoints one mission may hold.
-const MAX_WAYPOINTS: usize = 1000;
+/// Most waypoints one mission may hold: `mw_list` of that many, every
+/// number at its longest, is under 55 KB, so it fits lluavd's 64 KiB
+/// response buffer.
+pub(crate) const MAX_WAYPOINTS: usize = 400;
 
 /// A mission the vehicle cannot use: answered -2 (DESIGN.md, "Errors": a
 /// mission it cannot fly is a wrong request).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("Invalid arguments: bad mission: {0}")]
+#[error("Invalid arguments: {0}")]
 pub struct BadMission(pub String);
 
 impl Refusal for BadMission {
@@ -23,12 +25,10 @@ impl Refusal for BadMission {
 }
 
 /// A mission waypoint, NED metres and radians.
-#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Waypoint {
     /// Its id: given, or its 1-based position in the list.
-    #[serde(default)]
-    id: Option<u32>,
+    id: u32,
     /// North.
     x: f64,
     /// East.
@@ -36,7 +36,6 @@ pub(crate) struct Waypoint {
     /// Down (negative is up).
     z: f64,
     /// Heading on arrival, if any.
-    #[serde(default)]
     pub(crate) yaw: Option<f64>,
 }
 
@@ -46,14 +45,14 @@ impl Waypoint {
         Ned::new(self.x, self.y, self.z)
     }
 
-    /// The id (always set after [`parse`]).
+    /// The id.
     pub(crate) fn wp_id(&self) -> u32 {
-        self.id.unwrap_or(0)
+        self.id
     }
 
     /// Writes `id`, `x`, `y`, `z` and `yaw` as given.
     pub(crate) fn write(&self, out: &mut Fields<'_>) {
-        out.u64("id", self.wp_id().into())
+        out.u64("id", self.id.into())
             .f64("x", self.x)
             .f64("y", self.y)
             .f64("z", self.z);
@@ -62,13 +61,6 @@ impl Waypoint {
             None => out.null("yaw"),
         };
     }
-}
-
-/// DESIGN.md's mission JSON, `{"waypoints":[...]}`.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Waypoints {
-    waypoints: Vec<Waypoint>,
 }
 
 /// Where the simulator may fly: a cylinder around home.
@@ -95,59 +87,127 @@ impl Fence {
     };
 
     /// Why `p` is not flyable, if it is not. Coordinates are written as the
-    /// `f32` a client sends.
+    /// `f32` a client sends, and a huge or tiny number with an exponent
+    /// (`1e300`), so that a reason stays short whatever was sent.
     pub(crate) fn check(&self, p: Ned) -> Result<(), String> {
-        let dist = ((p.x - self.home.x).powi(2) + (p.y - self.home.y).powi(2)).sqrt();
+        let dist = (p.x - self.home.x).hypot(p.y - self.home.y);
         if dist > self.radius {
             return Err(format!(
-                "{dist:.1} m from home, beyond geofence_radius {}",
+                "{} m from home, beyond geofence_radius {}",
+                short(format!("{dist:.1}"), dist),
                 self.radius
             ));
         }
         if p.z > 0.0 {
             let z = p.z as f32;
-            return Err(format!("z = {z} is below the ground (NED: up is negative)"));
+            return Err(format!(
+                "z = {} is below the ground (NED: up is negative)",
+                short(z.to_string(), z)
+            ));
         }
         if -p.z > self.max_alt {
             let alt = -p.z as f32;
-            return Err(format!("altitude {alt} m above max_alt {}", self.max_alt));
+            return Err(format!(
+                "altitude {} m above max_alt {}",
+                short(alt.to_string(), alt),
+                self.max_alt
+            ));
         }
         Ok(())
     }
 }
 
-/// Parses DESIGN.md's mission JSON (or a top-level array of waypoints)
-/// and checks every waypoint against the fence. Waypoints without an id
-/// get their 1-based position.
+/// `text`, the number `v` as usually written, unless it is long; then `v`
+/// with an exponent.
+fn short(text: String, v: impl std::fmt::LowerExp) -> String {
+    if text.len() <= 16 { text } else { format!("{v:e}") }
+}
+
+/// Reads DESIGN.md's mission JSON, `{"waypoints":[...]}` or a top-level
+/// array of waypoints, each an object `{"id":..,"x":..,"y":..,"z":..,"yaw":..}`
+/// (`id` and `yaw` optional), and checks every waypoint against the
+/// fence. Waypoints without an id get their 1-based position. Reasons
+/// name waypoints by position and members by the protocol's names, and
+/// never quote the text (it may come from a file).
 pub(crate) fn parse(text: &str, fence: &Fence) -> Result<Vec<Waypoint>, BadMission> {
-    // serde would also read the object from an array of its fields, so
-    // the first character decides which of the two shapes this is.
-    let mut wps = if text.trim_start().starts_with('[') {
-        serde_json::from_str::<Vec<Waypoint>>(text)
-    } else {
-        serde_json::from_str::<Waypoints>(text).map(|w| w.waypoints)
+    let bad = BadMission;
+    let json: Value = serde_json::from_str(text)
+        .map_err(|e| bad(format!("not JSON (line {}, column {})", e.line(), e.column())))?;
+    let list = match &json {
+        Value::Array(list) => list,
+        Value::Object(members) => waypoints_member(members).map_err(bad)?,
+        _ => {
+            return Err(bad(
+                r#"a mission is {"waypoints":[...]} or an array of waypoints"#.into(),
+            ));
+        }
+    };
+    if list.is_empty() {
+        return Err(bad("no waypoints".into()));
     }
-    .map_err(|e| BadMission(e.to_string()))?;
-    if wps.is_empty() {
-        return Err(BadMission("no waypoints".into()));
-    }
-    if wps.len() > MAX_WAYPOINTS {
-        return Err(BadMission(format!("more than {MAX_WAYPOINTS} waypoints")));
+    if list.len() > MAX_WAYPOINTS {
+        return Err(bad(format!("more than {MAX_WAYPOINTS} waypoints")));
     }
     let mut seen = std::collections::HashSet::new();
-    for (i, wp) in wps.iter_mut().enumerate() {
-        let id = *wp.id.get_or_insert(u32::try_from(i + 1).unwrap_or(u32::MAX));
-        if !seen.insert(id) {
-            return Err(BadMission(format!("duplicate waypoint id {id}")));
-        }
-        if wp.yaw.is_some_and(|y| !y.is_finite()) {
-            return Err(BadMission(format!("waypoint {id}: yaw is not finite")));
+    let mut wps = Vec::with_capacity(list.len());
+    for (i, item) in list.iter().enumerate() {
+        let n = i + 1;
+        let wp = waypoint(item, n).map_err(|why| bad(format!("waypoint {n}: {why}")))?;
+        if !seen.insert(wp.id) {
+            return Err(bad(format!("waypoint {n}: duplicate id {}", wp.id)));
         }
         fence
             .check(wp.ned())
-            .map_err(|why| BadMission(format!("waypoint {id}: {why}")))?;
+            .map_err(|why| bad(format!("waypoint {n}: {why}")))?;
+        wps.push(wp);
     }
     Ok(wps)
+}
+
+/// The `waypoints` array of a mission object, its only member.
+fn waypoints_member(members: &Map<String, Value>) -> Result<&Vec<Value>, String> {
+    if members.keys().any(|k| k != "waypoints") {
+        return Err(r#"unexpected member (a mission object has only "waypoints")"#.into());
+    }
+    match members.get("waypoints") {
+        Some(Value::Array(list)) => Ok(list),
+        Some(_) => Err(r#""waypoints" is not an array"#.into()),
+        None => Err(r#"missing "waypoints""#.into()),
+    }
+}
+
+/// The waypoint at 1-based position `n`: an object, never an array read
+/// positionally.
+fn waypoint(item: &Value, n: usize) -> Result<Waypoint, String> {
+    const MEMBERS: [&str; 5] = ["id", "x", "y", "z", "yaw"];
+    let Value::Object(members) = item else {
+        return Err(r#"not an object {"x":..,"y":..,"z":..}"#.into());
+    };
+    if members.keys().any(|k| !MEMBERS.contains(&k.as_str())) {
+        return Err(r#"unexpected member (a waypoint has "id", "x", "y", "z", "yaw")"#.into());
+    }
+    let number = |key: &str| match members.get(key) {
+        Some(v) => v.as_f64().ok_or_else(|| format!(r#""{key}" is not a number"#)),
+        None => Err(format!(r#"missing "{key}""#)),
+    };
+    let id = match members.get("id") {
+        None | Some(Value::Null) => u32::try_from(n).unwrap_or(u32::MAX),
+        Some(v) => v
+            .as_u64()
+            .and_then(|id| u32::try_from(id).ok())
+            .ok_or(r#""id" is not an integer 0..4294967295"#)?,
+    };
+    let yaw = match members.get("yaw") {
+        None | Some(Value::Null) => None,
+        Some(v) => Some(v.as_f64().ok_or(r#""yaw" is not a number"#)?),
+    };
+    Ok(Waypoint {
+        id,
+        x: number("x")?,
+        y: number("y")?,
+        z: number("z")?,
+        yaw,
+    })
 }
 
 #[cfg(test)]
@@ -186,24 +246,85 @@ mod tests {
     }
 
     #[test]
-    fn unusable_missions_are_refused_with_a_reason() {
-        let refused = |json: &str| parse(json, &fence()).unwrap_err().to_string();
-        assert!(refused(r#"[{"x":1}]"#).contains("missing field `y`"));
-        assert!(refused(r#"{"waypoints":[{"x":1,"y":2}]}"#).contains("missing field `z`"));
-        assert!(
-            refused(r#"{"waypoints":[{"x":1,"y":2,"z":-1,"speed":3}]}"#).contains("unknown field `speed`")
+    fn unusable_missions_are_refused_with_a_reason_in_the_protocols_words() {
+        let refused = |json: &str| {
+            parse(json, &fence())
+                .unwrap_err()
+                .to_string()
+                .strip_prefix("Invalid arguments: ")
+                .expect("-2")
+                .to_owned()
+        };
+        for (json, why) in [
+            (r#"[{"x":1}]"#, r#"waypoint 1: missing "y""#),
+            (
+                r#"{"waypoints":[{"x":1,"y":2,"z":-1},{"x":1,"y":2}]}"#,
+                r#"waypoint 2: missing "z""#,
+            ),
+            (
+                r#"[[2,0,-3,0]]"#,
+                r#"waypoint 1: not an object {"x":..,"y":..,"z":..}"#,
+            ),
+            (
+                r#"{"waypoints":[[2,0,-3,0]]}"#,
+                r#"waypoint 1: not an object {"x":..,"y":..,"z":..}"#,
+            ),
+            (
+                r#"{"waypoints":[{"x":1,"y":2,"z":-1,"speed":3}]}"#,
+                r#"waypoint 1: unexpected member (a waypoint has "id", "x", "y", "z", "yaw")"#,
+            ),
+            (
+                r#"[{"x":"1","y":2,"z":-1}]"#,
+                r#"waypoint 1: "x" is not a number"#,
+            ),
+            (
+                r#"[{"id":-1,"x":1,"y":2,"z":-1}]"#,
+                r#"waypoint 1: "id" is not an integer 0..4294967295"#,
+            ),
+            (
+                r#"[{"x":1,"y":2,"z":-1,"yaw":true}]"#,
+                r#"waypoint 1: "yaw" is not a number"#,
+            ),
+            (
+                r#"{"wp":[]}"#,
+                r#"unexpected member (a mission object has only "waypoints")"#,
+            ),
+            (r#"{"waypoints":{}}"#, r#""waypoints" is not an array"#),
+            ("{}", r#"missing "waypoints""#),
+            (
+                "7",
+                r#"a mission is {"waypoints":[...]} or an array of waypoints"#,
+            ),
+            (r#"{"waypoints":[]}"#, "no waypoints"),
+            ("[]", "no waypoints"),
+            (r#"{"takeoff_alt": 2.5"#, "not JSON (line 1, column 19)"),
+            (
+                r#"[{"id":4,"x":0,"y":0,"z":-1},{"id":4,"x":0,"y":0,"z":-2}]"#,
+                "waypoint 2: duplicate id 4",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":2}]"#,
+                "waypoint 1: z = 2 is below the ground (NED: up is negative)",
+            ),
+            (
+                r#"[{"x":1e300,"y":0,"z":-2}]"#,
+                "waypoint 1: 1e300 m from home, beyond geofence_radius 100",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":-80}]"#,
+                "waypoint 1: altitude 80 m above max_alt 50",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":-1e30}]"#,
+                "waypoint 1: altitude 1e30 m above max_alt 50",
+            ),
+        ] {
+            assert_eq!(refused(json), why, "{json}");
+        }
+        let too_many = format!(
+            "[{}]",
+            vec![r#"{"x":0,"y":0,"z":-1}"#; MAX_WAYPOINTS + 1].join(",")
         );
-        assert_eq!(
-            refused(r#"{"waypoints":[]}"#),
-            "Invalid arguments: bad mission: no waypoints"
-        );
-        assert_eq!(refused("[]"), "Invalid arguments: bad mission: no waypoints");
-        assert_eq!(
-            refused(r#"{"waypoints":[{"id":4,"x":0,"y":0,"z":-1},{"id":4,"x":0,"y":0,"z":-2}]}"#),
-            "Invalid arguments: bad mission: duplicate waypoint id 4"
-        );
-        assert!(refused(r#"{"waypoints":[{"x":0,"y":0,"z":2}]}"#).contains("below the ground"));
-        assert!(refused(r#"{"waypoints":[{"x":500,"y":0,"z":-2}]}"#).contains("geofence_radius"));
-        assert!(refused(r#"{"waypoints":[{"x":0,"y":0,"z":-80}]}"#).contains("max_alt"));
+        assert_eq!(refused(&too_many), "more than 400 waypoints");
     }
 }
