@@ -73,7 +73,7 @@ fn main() {
     };
     let auth = Auth::new(Some("secret")).expect("a valid password");
     let mut server = Server::new(Toy::default(), clock, auth);
-    let mut session = server.open(Some(std::net::Ipv4Addr::LOCALHOST.into()));
+    let mut session = server.open(Some(std::net::IpAddr::from(std::net::Ipv4Addr::LOCALHOST).into()));
     let mut out = [0u8; 2048];
     for frame in frames {
         println!("> {frame}");

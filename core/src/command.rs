@@ -8,6 +8,7 @@
 use heapless::Vec;
 
 use crate::error::ArgError;
+use crate::number::Number;
 use crate::parse::rules;
 use crate::table::{CommandId, Grammar};
 
@@ -82,10 +83,11 @@ pub enum Args<'a> {
     OptCount(Option<u32>),
     /// A PWM value.
     Pwm(u16),
-    /// A finite number ≥ 0.
-    Amount(f32),
-    /// An optional finite number ≥ 0.
-    OptAmount(Option<f32>),
+    /// A finite number ≥ 0, as sent (a backend checks its own range on
+    /// the value as sent: [`Number::above`]).
+    Amount(Number<'a>),
+    /// An optional finite number ≥ 0, as sent.
+    OptAmount(Option<Number<'a>>),
     /// An angle in degrees, -90..=90.
     Angle(f32),
     /// A single path component.
@@ -109,7 +111,7 @@ pub enum Args<'a> {
         /// The value as text; its type is the backend's business.
         value: &'a str,
     },
-    /// `set_sp_ned x:y:z:yaw`.
+    /// `set_sp_ned x:y:z:yaw`, above the ground (`z < 0`).
     Setpoint(Pose),
     /// `test_wp x:y:z`.
     Point(Point),
@@ -180,9 +182,9 @@ impl Args<'_> {
         let finite = |v: f32| rules::finite(v).map(|_| ());
         match self {
             Args::None | Args::Flag(_) | Args::OptCount(_) | Args::Pwm(_) => Ok(()),
-            Args::Amount(v) | Args::OptAmount(Some(v)) => rules::non_negative(*v).map(|_| ()),
+            Args::Amount(n) | Args::OptAmount(Some(n)) => rules::non_negative(*n).map(|_| ()),
             Args::OptAmount(None) | Args::OptName(None) => Ok(()),
-            Args::Angle(v) => rules::angle(*v).map(|_| ()),
+            Args::Angle(v) => rules::angle(Number::from(*v)).map(|_| ()),
             Args::Name(s) | Args::OptName(Some(s)) => rules::name(s).map(|_| ()),
             Args::Path(s) => rules::path(s).map(|_| ()),
             Args::Text(s) => rules::text(s).map(|_| ()),
@@ -193,7 +195,8 @@ impl Args<'_> {
                 rules::param_name(name)?;
                 rules::text(value).map(|_| ())
             }
-            Args::Setpoint(p) | Args::Pose(p) => [p.x, p.y, p.z, p.yaw].into_iter().try_for_each(finite),
+            Args::Setpoint(p) => rules::setpoint(*p).map(|_| ()),
+            Args::Pose(p) => [p.x, p.y, p.z, p.yaw].into_iter().try_for_each(finite),
             Args::Point(p) => [p.x, p.y, p.z].into_iter().try_for_each(finite),
             Args::Zyhk { heights, land } => {
                 if heights.is_empty() {

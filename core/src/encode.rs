@@ -8,7 +8,7 @@
 use core::fmt::{self, Display, Write};
 
 use crate::command::{Args, Command, Payload};
-use crate::number::format_f32;
+use crate::number::{Number, format_f32};
 
 impl Command<'_> {
     /// Writes the frame for this command.
@@ -21,17 +21,15 @@ impl Command<'_> {
                 arg(w)?;
                 w.write_char(if *on { '1' } else { '0' })
             }
-            Args::OptCount(Some(n)) => {
+            Args::OptCount(Some(n)) => write!(w, " {n}"),
+            Args::Pwm(n) => write!(w, " {n}"),
+            Args::Amount(n) | Args::OptAmount(Some(n)) => {
                 arg(w)?;
-                write!(w, "{n}")
+                sent(w, n)
             }
-            Args::Pwm(n) => {
+            Args::Angle(v) => {
                 arg(w)?;
-                write!(w, "{n}")
-            }
-            Args::Amount(v) | Args::OptAmount(Some(v)) | Args::Angle(v) => {
-                arg(w)?;
-                w.write_str(format_f32(*v).as_str())
+                float(w, *v)
             }
             Args::Name(s)
             | Args::OptName(Some(s))
@@ -90,12 +88,26 @@ impl Command<'_> {
     }
 }
 
+/// A number as it was sent, so that the range a backend checks is the
+/// same; one made from an `f32`, in its shortest form.
+fn sent<W: Write>(w: &mut W, n: &Number<'_>) -> fmt::Result {
+    match n.text() {
+        Some(text) => w.write_str(text),
+        None => float(w, n.value()),
+    }
+}
+
+/// An `f32` in its shortest form, `-0` written `0`.
+fn float<W: Write>(w: &mut W, v: f32) -> fmt::Result {
+    w.write_str(format_f32(v + 0.0).as_str())
+}
+
 fn floats<W: Write>(w: &mut W, sep: char, items: &[f32]) -> fmt::Result {
     for (i, item) in items.iter().enumerate() {
         if i > 0 {
             w.write_char(sep)?;
         }
-        w.write_str(format_f32(*item).as_str())?;
+        float(w, *item)?;
     }
     Ok(())
 }

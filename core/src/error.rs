@@ -31,7 +31,8 @@ impl Ret {
 }
 
 /// Why a command's arguments were refused. Every variant is answered with
-/// ret -2 and the message `Invalid arguments, usage: <usage>`.
+/// ret -2: the message is `Invalid arguments: <reason>` for a variant with
+/// a [`ArgError::reason`], else `Invalid arguments, usage: <usage>`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum ArgError {
     /// A required argument is missing.
@@ -40,12 +41,16 @@ pub enum ArgError {
     Unexpected,
     /// The fields are not in the command's shape (separators, counts).
     Malformed,
-    /// A field that should be a number is not a decimal number.
+    /// A field that should be a number is not a decimal number (`nan`
+    /// and `inf` are not).
     NotANumber,
-    /// A number is NaN, infinite, or too large for its type.
+    /// A number is too large for its type, or a hand-built one is NaN or
+    /// infinite.
     NotFinite,
     /// A number is outside its stated range.
     OutOfRange,
+    /// A setpoint at or below the ground (`z >= 0`, NED from home).
+    AtOrBelowGround,
     /// A flag is not exactly `0` or `1`.
     NotAFlag,
     /// A name or path could escape its directory or holds forbidden bytes.
@@ -60,6 +65,16 @@ pub enum ArgError {
     BadPassword,
     /// [`crate::Command::new`] got arguments of another command's grammar.
     WrongGrammar,
+}
+
+impl ArgError {
+    /// What a client must be told beyond the usage line, if anything.
+    pub fn reason(self) -> Option<&'static str> {
+        match self {
+            ArgError::AtOrBelowGround => Some(messages::GROUND),
+            _ => None,
+        }
+    }
 }
 
 /// Why a frame could not be turned into a [`crate::Command`].
@@ -181,11 +196,9 @@ impl Failure {
 }
 
 fn push_truncated<const N: usize>(s: &mut heapless::String<N>, text: &str) {
-    for c in text.chars() {
-        if s.push(c).is_err() {
-            break;
-        }
-    }
+    let room = N - s.len();
+    // Cannot fail: the cut fits the room.
+    let _ = s.push_str(cut_at_char_boundary(text, room));
 }
 
 struct Truncating<const N: usize>(heapless::String<N>);
@@ -205,6 +218,11 @@ pub mod messages {
     pub const EMPTY: &str = "Empty command";
     /// Bad or missing arguments; the usage line follows.
     pub const INVALID_ARGS_PREFIX: &str = "Invalid arguments, usage: ";
+    /// A value refused for a reason; the reason follows.
+    pub const INVALID_REASON_PREFIX: &str = "Invalid arguments: ";
+    /// A setpoint at or below the ground.
+    pub const GROUND: &str =
+        "setpoint at or below the ground (z >= 0; up is negative z): use land to descend";
     /// Not logged in.
     pub const LOGIN_FIRST: &str = "Login first!";
     /// Wrong password.
@@ -243,19 +261,28 @@ impl fmt::Display for Refusal {
     }
 }
 
+impl<'a> ParseError<'a> {
+    /// The message a client sees, in two parts (no copy of the name).
+    pub(crate) fn parts(&self) -> [&'a str; 2] {
+        match *self {
+            ParseError::Empty => [messages::EMPTY, ""],
+            ParseError::Unknown(name) => [
+                messages::UNSUPPORTED_PREFIX,
+                cut_at_char_boundary(name, messages::UNKNOWN_NAME_ECHO),
+            ],
+            ParseError::InvalidArgs(id, e) => match e.reason() {
+                Some(reason) => [messages::INVALID_REASON_PREFIX, reason],
+                None => [messages::INVALID_ARGS_PREFIX, id.spec().usage],
+            },
+        }
+    }
+}
+
 impl fmt::Display for ParseError<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            ParseError::Empty => f.write_str(messages::EMPTY),
-            ParseError::Unknown(name) => {
-                f.write_str(messages::UNSUPPORTED_PREFIX)?;
-                f.write_str(cut_at_char_boundary(name, messages::UNKNOWN_NAME_ECHO))
-            }
-            ParseError::InvalidArgs(id, _) => {
-                f.write_str(messages::INVALID_ARGS_PREFIX)?;
-                f.write_str(id.spec().usage)
-            }
-        }
+        let [a, b] = self.parts();
+        f.write_str(a)?;
+        f.write_str(b)
     }
 }
 

@@ -8,10 +8,11 @@
 use crate::error::Refusal;
 use crate::session::{Auth, Session};
 use crate::table::Flags;
+use crate::throttle::Slots;
 
 /// The login gate: with a password set, only a logged-in session passes.
 /// (`login` itself is exempt; the caller knows which command it is.)
-pub fn login(session: &Session, auth: &Auth) -> Result<(), Refusal> {
+pub fn login<S: Slots>(session: &Session, auth: &Auth<S>) -> Result<(), Refusal> {
     if auth.password_required() && !session.logged_in() {
         Err(Refusal::LoginFirst)
     } else {
@@ -21,10 +22,10 @@ pub fn login(session: &Session, auth: &Auth) -> Result<(), Refusal> {
 
 /// The admin, armed and lock gates for a command with `flags`. `armed` is
 /// asked only when the answer matters, at the moment of the check.
-pub fn command(
+pub fn command<S: Slots>(
     flags: &Flags,
     session: &Session,
-    auth: &Auth,
+    auth: &Auth<S>,
     armed: impl FnOnce() -> bool,
 ) -> Result<(), Refusal> {
     if flags.admin_only && !session.admin() {

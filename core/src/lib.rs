@@ -12,7 +12,7 @@
 //! - [`gate`] and [`session`]: login, admin, armed and lock gates;
 //! - [`response`]: JSON responses in caller-provided fixed buffers;
 //! - [`Backend`] and [`Clock`]: what an adapter supplies;
-//! - [`throttle`]: password guessing limited per client address;
+//! - [`throttle`]: password guessing limited per client and across all;
 //! - [`websocket`]: the WebSocket frame codec both adapters share (headers,
 //!   unmasking, UTF-8 checked as a text message arrives);
 //! - [`Server::handle`]: the one entry point an adapter calls per message.
@@ -30,7 +30,7 @@
 //! }
 //!
 //! let mut server = Server::new(Parked, || 1_714_233_600_000, Auth::new(Some("secret")).unwrap());
-//! let mut session = server.open(Some([192, 168, 1, 20].into()));
+//! let mut session = server.open(Some(core::net::IpAddr::from([192, 168, 1, 20]).into()));
 //! let mut out = [0u8; 512];
 //! assert_eq!(
 //!     server.handle(&mut session, Message::Text(b"state"), &mut out),
@@ -64,8 +64,9 @@ pub mod websocket;
 pub use backend::{Backend, Clock, Context, Step, Ticket};
 pub use command::{Args, Command, LandPoint, MAX_HEIGHTS, MAX_WAYPOINT_IDS, Payload, Point, Pose};
 pub use error::{ArgError, Failure, ParseError, Refusal, Ret};
+pub use number::Number;
 pub use parse::parse;
 pub use response::{Fields, Items, MIN_RESPONSE_CAPACITY};
 pub use server::{CloseCode, Message, Outcome, Server};
-pub use session::{Auth, AuthError, LoginOutcome, Role, Session, SessionId};
+pub use session::{Auth, AuthError, LoginOutcome, Peer, Role, Session, SessionId};
 pub use table::{CommandId, Flags, Grammar, Section, Spec, TABLE};

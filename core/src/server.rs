@@ -10,16 +10,15 @@
 //! [`Outcome`] (calling [`Server::resume`] once a pending backend is ready)
 //! and report the end of the connection with [`Server::close`].
 
-use core::net::IpAddr;
-
 use crate::backend::{Backend, Clock, Context, Step, Ticket};
 use crate::command::{Args, Command};
-use crate::error::{ArgError, Failure, ParseError, Refusal, Ret, cut_at_char_boundary, messages};
+use crate::error::{ArgError, Failure, ParseError, Refusal, Ret, messages};
 use crate::gate;
 use crate::parse::{self, Split};
 use crate::response::{self, Fields};
-use crate::session::{Auth, LoginOutcome, Session, SessionId};
+use crate::session::{Auth, LoginOutcome, Peer, Session, SessionId};
 use crate::table::{CommandId, TABLE, lookup};
+use crate::throttle::{DefaultSlots, Slots};
 
 /// A complete WebSocket message, as the adapter's framing layer saw it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -112,13 +111,14 @@ impl<'o> Outcome<'o> {
     }
 }
 
-/// The protocol for one vehicle: its backend, clock and login state. Every
-/// connection brings its own [`Session`].
+/// The protocol for one vehicle: its backend, clock and login state (`S`
+/// is the storage of its login throttle's table). Every connection brings
+/// its own [`Session`].
 #[derive(Debug)]
-pub struct Server<B, C> {
+pub struct Server<B, C, S = DefaultSlots> {
     backend: B,
     clock: C,
-    auth: Auth,
+    auth: Auth<S>,
     /// The last [`SessionId`] handed out.
     last_session: u32,
 }
@@ -142,23 +142,7 @@ impl<'a> Answer<'a> {
     }
 
     fn invalid(e: ParseError<'a>) -> Self {
-        let cmd = e.command().map_or(0, u8::from);
-        match e {
-            ParseError::Empty => Answer::Error(Ret::InvalidArgs, cmd, [messages::EMPTY, ""]),
-            ParseError::Unknown(name) => Answer::Error(
-                Ret::InvalidArgs,
-                cmd,
-                [
-                    messages::UNSUPPORTED_PREFIX,
-                    cut_at_char_boundary(name, messages::UNKNOWN_NAME_ECHO),
-                ],
-            ),
-            ParseError::InvalidArgs(id, _) => Answer::Error(
-                Ret::InvalidArgs,
-                cmd,
-                [messages::INVALID_ARGS_PREFIX, id.spec().usage],
-            ),
-        }
+        Answer::Error(Ret::InvalidArgs, e.command().map_or(0, u8::from), e.parts())
     }
 
     /// What a command that ran came to, given the fields it wrote.
@@ -173,9 +157,9 @@ impl<'a> Answer<'a> {
     }
 }
 
-impl<B: Backend, C: Clock> Server<B, C> {
+impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
     /// A server for one vehicle.
-    pub fn new(backend: B, clock: C, auth: Auth) -> Self {
+    pub fn new(backend: B, clock: C, auth: Auth<S>) -> Self {
         Server {
             backend,
             clock,
@@ -195,19 +179,19 @@ impl<B: Backend, C: Clock> Server<B, C> {
     }
 
     /// The vehicle-wide login state.
-    pub fn auth(&self) -> &Auth {
+    pub fn auth(&self) -> &Auth<S> {
         &self.auth
     }
 
     /// The vehicle-wide login state, mutably.
-    pub fn auth_mut(&mut self) -> &mut Auth {
+    pub fn auth_mut(&mut self) -> &mut Auth<S> {
         &mut self.auth
     }
 
-    /// A session for a new connection from `peer` (its IP address, which
-    /// login throttling counts wrong passwords by; `None` if the transport
-    /// has none).
-    pub fn open(&mut self, peer: Option<IpAddr>) -> Session {
+    /// A session for a new connection from `peer` (who login throttling
+    /// counts its wrong passwords for: its IP address, or a per-client key;
+    /// `None` if the transport has neither).
+    pub fn open(&mut self, peer: Option<Peer>) -> Session {
         self.last_session = self.last_session.wrapping_add(1).max(1);
         Session::with(SessionId(self.last_session), peer)
     }

@@ -1,9 +1,9 @@
 //! Sessions and the vehicle-wide login state.
 //!
-//! A [`Session`] is one connection: its [`Role`], the address it came from,
-//! how many wrong passwords it sent in a row, and the command it waits for,
-//! if any. [`Auth`] is shared by every session of a vehicle: the password,
-//! the two special login values, lock mode and the per-address [`Throttle`].
+//! A [`Session`] is one connection: its [`Role`], the [`Peer`] it came
+//! from, how many wrong passwords it sent in a row, and the command it
+//! waits for, if any. [`Auth`] is shared by every session of a vehicle: the
+//! password, the two special login values, lock mode and the [`Throttle`].
 //! Passwords are compared in constant time.
 
 use core::net::IpAddr;
@@ -13,7 +13,24 @@ use crate::error::ArgError;
 use crate::parse::MAX_PASSWORD_LEN;
 use crate::table::CommandId;
 pub use crate::throttle::MAX_WRONG_PASSWORDS;
-use crate::throttle::Throttle;
+use crate::throttle::{DefaultSlots, Slots, Throttle};
+
+/// Who a session is, as login throttling counts wrong passwords.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Peer {
+    /// The client's network address (IPv6 counts by its /64 prefix).
+    Address(IpAddr),
+    /// An opaque per-client key that an adapter derives from a name it
+    /// trusts to be per-client (an uplink's client id, hashed with a key
+    /// of its own so that no client can pick another's).
+    Client([u8; 16]),
+}
+
+impl From<IpAddr> for Peer {
+    fn from(addr: IpAddr) -> Self {
+        Peer::Address(addr)
+    }
+}
 
 /// The login value that grants admin, unless configured otherwise.
 pub const DEFAULT_ADMIN_PASSWORD: &str = "1025";
@@ -43,20 +60,21 @@ pub struct SessionId(pub u32);
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Session {
     id: SessionId,
-    peer: Option<IpAddr>,
+    peer: Option<Peer>,
     role: Role,
     wrong_passwords: u8,
     pending: Option<(Ticket, CommandId)>,
 }
 
 impl Session {
-    /// A session with no peer address (in-process use and tests; adapters
-    /// use [`crate::Server::open`] so that login throttling sees the peer).
+    /// A session with no peer (in-process use and tests; its wrong passwords
+    /// count for this session only. Adapters use [`crate::Server::open`] so
+    /// that login throttling sees the peer).
     pub const fn new() -> Self {
         Session::with(SessionId(0), None)
     }
 
-    pub(crate) const fn with(id: SessionId, peer: Option<IpAddr>) -> Self {
+    pub(crate) const fn with(id: SessionId, peer: Option<Peer>) -> Self {
         Session {
             id,
             peer,
@@ -71,8 +89,8 @@ impl Session {
         self.id
     }
 
-    /// The client's address, as the adapter gave it.
-    pub fn peer(&self) -> Option<IpAddr> {
+    /// Who the client is, as the adapter gave it.
+    pub fn peer(&self) -> Option<Peer> {
         self.peer
     }
 
@@ -168,14 +186,15 @@ pub enum LoginOutcome {
     Throttled,
 }
 
-/// Vehicle-wide login state, shared by all sessions.
+/// Vehicle-wide login state, shared by all sessions; `S` is the storage of
+/// the [`Throttle`]'s table.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Auth {
+pub struct Auth<S = DefaultSlots> {
     password: Option<Secret>,
     admin: Secret,
     logout: Secret,
     lock_mode: bool,
-    throttle: Throttle,
+    throttle: Throttle<S>,
 }
 
 /// Why an [`Auth`] could not be configured.
@@ -212,6 +231,20 @@ impl Auth {
             auth.check_not_special(p.as_str())?;
         }
         Ok(auth)
+    }
+}
+
+impl<S: Slots> Auth<S> {
+    /// The same login state with `throttle` (its table, lockouts and
+    /// budget) in place of the current one.
+    pub fn with_throttle<T: Slots>(self, throttle: Throttle<T>) -> Auth<T> {
+        Auth {
+            password: self.password,
+            admin: self.admin,
+            logout: self.logout,
+            lock_mode: self.lock_mode,
+            throttle,
+        }
     }
 
     fn check_not_special(&self, candidate: &str) -> Result<(), AuthError> {
@@ -261,18 +294,19 @@ impl Auth {
     /// [`MAX_WRONG_PASSWORDS`] wrong passwords in a row: `base_ms` the first
     /// time, doubling with each further lockout up to `max_ms`.
     pub fn with_lockout(mut self, base_ms: u32, max_ms: u32) -> Self {
-        self.throttle = Throttle::new(base_ms, max_ms);
+        self.throttle = self.throttle.with_lockout(base_ms, max_ms);
         self
     }
 
     /// Checks a login attempt at `now_ms` and updates the session and the
-    /// per-address record. Every secret is compared, in constant time,
-    /// whatever the attempt; nothing is compared while the session's
-    /// address is locked out.
+    /// peer's record. Every secret is compared, in constant time, whatever
+    /// the attempt; nothing is compared while the throttle refuses the
+    /// session's peer (locked out, no room for its record, or the budget
+    /// of wrong passwords spent).
     pub fn login(&mut self, session: &mut Session, attempt: &str, now_ms: i64) -> LoginOutcome {
         if session
             .peer
-            .is_some_and(|peer| self.throttle.locked(peer, now_ms))
+            .is_some_and(|peer| !self.throttle.admits(&peer, now_ms))
         {
             return LoginOutcome::Throttled;
         }
@@ -291,7 +325,7 @@ impl Auth {
         } else {
             session.wrong_passwords = session.wrong_passwords.saturating_add(1);
             if let Some(peer) = session.peer {
-                self.throttle.wrong(peer, now_ms);
+                self.throttle.wrong(&peer, now_ms);
             }
             return LoginOutcome::Wrong {
                 close: session.wrong_passwords >= MAX_WRONG_PASSWORDS,
@@ -299,7 +333,7 @@ impl Auth {
         };
         session.wrong_passwords = 0;
         if let Some(peer) = session.peer {
-            self.throttle.granted(peer);
+            self.throttle.granted(&peer);
         }
         session.role = role;
         if role == Role::Admin {

@@ -3,12 +3,12 @@
 
 mod common;
 
-use std::net::Ipv4Addr;
+use std::net::{IpAddr, Ipv4Addr};
 
 use common::{TS, checked_json, clock};
 use lluav_core::{
-    Auth, Backend, CloseCode, Command, CommandId, Context, Failure, Fields, Message, Outcome, Ret, Role,
-    Server, SessionId, Step, Ticket,
+    Auth, Backend, CloseCode, Command, CommandId, Context, Failure, Fields, Message, Outcome, Peer, Ret,
+    Role, Server, SessionId, Step, Ticket,
 };
 
 /// A vehicle that records what it was told, waits for an "autopilot" on
@@ -86,12 +86,15 @@ fn reply(outcome: Outcome<'_>) -> serde_json::Value {
 #[test]
 fn open_hands_out_distinct_sessions_that_remember_their_peer() {
     let mut s = server();
-    let a = s.open(Some(Ipv4Addr::new(10, 0, 0, 1).into()));
+    let addr = IpAddr::from(Ipv4Addr::new(10, 0, 0, 1));
+    let a = s.open(Some(addr.into()));
     let b = s.open(None);
+    let c = s.open(Some(Peer::Client([7; 16])));
     assert_ne!(a.id(), b.id());
     assert_ne!(a.id(), SessionId(0), "0 is for sessions made without a server");
-    assert_eq!(a.peer(), Some(Ipv4Addr::new(10, 0, 0, 1).into()));
+    assert_eq!(a.peer(), Some(Peer::Address(addr)));
     assert_eq!(b.peer(), None);
+    assert_eq!(c.peer(), Some(Peer::Client([7; 16])));
     assert_eq!(a.role(), Role::Anonymous);
 }
 

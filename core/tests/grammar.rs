@@ -24,6 +24,7 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 ("true", NotAFlag),
                 ("01", NotAFlag),
                 (" 1", NotAFlag),
+                ("+1", NotAFlag),
             ]),
         ]
         .concat(),
@@ -32,30 +33,62 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
             ("x", NotANumber),
             ("1.5", NotANumber),
             ("4294967296", OutOfRange),
+            ("+1", NotANumber),
+            (" 1", NotANumber),
         ]),
         Grammar::Pwm => [
             missing,
-            c(&[("65536", OutOfRange), ("-1", NotANumber), ("1e3", NotANumber)]),
+            c(&[
+                ("65536", OutOfRange),
+                ("-1", NotANumber),
+                ("1e3", NotANumber),
+                ("+5", NotANumber),
+            ]),
         ]
         .concat(),
         Grammar::Amount => [
             missing,
             c(&[
                 ("-1", OutOfRange),
-                ("nan", NotFinite),
-                ("inf", NotFinite),
-                ("-Infinity", NotFinite),
+                ("nan", NotANumber),
+                ("inf", NotANumber),
+                ("-Infinity", NotANumber),
                 ("1e39", NotFinite),
+                ("-1e39", NotFinite),
                 ("abc", NotANumber),
                 ("0x10", NotANumber),
                 ("1,5", NotANumber),
+                ("+1", NotANumber),
+                ("+0", NotANumber),
+                (" 1", NotANumber),
+                ("1 5", NotANumber),
+                ("1. 5", NotANumber),
+                ("-1e-50", OutOfRange),
+                (
+                    "-0.0000000000000000000000000000000000000000000000000001",
+                    OutOfRange,
+                ),
             ]),
         ]
         .concat(),
-        Grammar::OptAmount => c(&[("-0.5", OutOfRange), ("NaN", NotFinite), ("x", NotANumber)]),
+        Grammar::OptAmount => c(&[
+            ("-0.5", OutOfRange),
+            ("NaN", NotANumber),
+            ("x", NotANumber),
+            ("+2", NotANumber),
+        ]),
         Grammar::Angle => [
             missing,
-            c(&[("91", OutOfRange), ("-90.5", OutOfRange), ("inf", NotFinite)]),
+            c(&[
+                ("91", OutOfRange),
+                ("-90.5", OutOfRange),
+                ("inf", NotANumber),
+                ("+45", NotANumber),
+                ("90.000001", OutOfRange),
+                ("-90.0000001", OutOfRange),
+                ("90.00000000000000000000000000001", OutOfRange),
+                ("9.00000001e1", OutOfRange),
+            ]),
         ]
         .concat(),
         Grammar::Name => [
@@ -69,11 +102,18 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 ("a\0b", UnsafePath),
                 (" x", UnsafePath),
                 ("a\tb", UnsafePath),
-                (&"n".repeat(256), UnsafePath),
+                (&"n".repeat(129), UnsafePath),
+                (".hidden", UnsafePath),
+                ("evil\u{202E}gpj.exe", UnsafePath),
+                ("a\u{200B}b", UnsafePath),
+                ("\u{FEFF}bom", UnsafePath),
+                ("tag\u{E0041}", UnsafePath),
+                ("del\u{7F}", UnsafePath),
+                ("c1\u{85}", UnsafePath),
             ]),
         ]
         .concat(),
-        Grammar::OptName => c(&[("../etc", UnsafePath), ("a/b", UnsafePath)]),
+        Grammar::OptName => c(&[("../etc", UnsafePath), ("a/b", UnsafePath), (".x", UnsafePath)]),
         Grammar::Path => [
             missing,
             c(&[
@@ -83,6 +123,8 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 ("a/", UnsafePath),
                 ("..", UnsafePath),
                 ("a\\..\\b", UnsafePath),
+                ("maps/.git", UnsafePath),
+                ("a/b\u{202E}c", UnsafePath),
                 (&"p/".repeat(513), UnsafePath),
             ]),
         ]
@@ -122,16 +164,31 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
             c(&[
                 ("1:2:3", Malformed),
                 ("1:2:3:4:5", Malformed),
-                ("nan:0:0:0", NotFinite),
-                ("0:0:0:inf", NotFinite),
+                ("nan:0:0:0", NotANumber),
+                ("0:0:0:inf", NotANumber),
                 ("1,2,3,4", NotANumber),
                 ("1:2::4", Missing),
+                ("+1:0:-3:0", NotANumber),
+                ("1: 2:-3:0", NotANumber),
+                ("1:2 :-3:0", NotANumber),
+                ("1:2:-3: 0", NotANumber),
+                ("3:0:0:0", AtOrBelowGround),
+                ("1:2:3:4", AtOrBelowGround),
+                ("0:0:-0:0", AtOrBelowGround),
+                ("0:0:-1e-50:0", AtOrBelowGround),
+                ("0:0:1e-50:0", AtOrBelowGround),
             ]),
         ]
         .concat(),
         Grammar::Point => [
             missing,
-            c(&[("1:2", Malformed), ("1:2:inf", NotFinite), ("1:2:3:4", Malformed)]),
+            c(&[
+                ("1:2", Malformed),
+                ("1:2:inf", NotANumber),
+                ("1:2:1e40", NotFinite),
+                ("1:2:3:4", Malformed),
+                ("+1:0:0", NotANumber),
+            ]),
         ]
         .concat(),
         Grammar::Pose => [
@@ -139,7 +196,9 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
             c(&[
                 ("1:2:3:4", NotANumber),
                 ("1,2,3", Malformed),
-                ("1,2,3,nan", NotFinite),
+                ("1,2,3,nan", NotANumber),
+                ("1,2,3,+4", NotANumber),
+                ("1, 2,3,4", NotANumber),
             ]),
         ]
         .concat(),
@@ -149,9 +208,12 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 ("1,,2", Missing),
                 (&vec!["1"; 33].join(","), TooMany),
                 ("1 0,0", Malformed),
-                ("nan", NotFinite),
+                ("nan", NotANumber),
                 ("1 0,0,x", NotANumber),
                 ("1 0,0,0 9", NotANumber),
+                ("+1", NotANumber),
+                ("1, 2", Malformed),
+                ("1 +0,0,0", NotANumber),
             ]),
         ]
         .concat(),
@@ -170,6 +232,10 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 (&format!("1:{}{}", "[".repeat(65), "]".repeat(65)), BadJson),
                 ("1:../x", UnsafePath),
                 ("1:", UnsafePath),
+                ("+7:[]", NotANumber),
+                (" 7:[]", NotANumber),
+                ("7 :[]", NotANumber),
+                ("1:.hidden.json", UnsafePath),
             ]),
         ]
         .concat(),
@@ -182,6 +248,9 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 ("1001:a", NotANumber),
                 ("1001", Malformed),
                 ("1001:1;2", NotANumber),
+                ("+1001:1", NotANumber),
+                ("1001:+1", NotANumber),
+                ("1001:1, 2", NotANumber),
             ]),
         ]
         .concat(),
@@ -190,6 +259,7 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
             c(&[
                 ("t k:a", Malformed),
                 ("t:../a", UnsafePath),
+                ("t:.a", UnsafePath),
                 ("t", Malformed),
                 (":a", Malformed),
             ]),
@@ -221,16 +291,20 @@ fn every_command_refuses_its_invalid_forms_with_a_typed_reason() {
 }
 
 #[test]
-fn invalid_arguments_get_ret_minus_2_and_the_usage_line() {
+fn invalid_arguments_get_ret_minus_2_and_the_usage_line_or_their_reason() {
     let mut s = server(Some("pw"));
     let mut admin = Session::new();
     assert_eq!(send(&mut s, &mut admin, "login 1025").ret(), 0);
     for spec in &TABLE {
-        for (args, _) in invalid(spec.grammar) {
+        for (args, why) in invalid(spec.grammar) {
             let r = send(&mut s, &mut admin, &frame(spec.name, &args));
             assert_eq!(r.ret(), -2, "{}", spec.name);
             assert_eq!(r.cmd(), i64::from(u8::from(spec.id)));
-            assert_eq!(r.msg(), format!("Invalid arguments, usage: {}", spec.usage));
+            let msg = match why.reason() {
+                Some(reason) => format!("Invalid arguments: {reason}"),
+                None => format!("Invalid arguments, usage: {}", spec.usage),
+            };
+            assert_eq!(r.msg(), msg);
         }
     }
     assert!(
@@ -352,4 +426,74 @@ fn every_grammar_in_the_table_has_valid_and_invalid_cases() {
         assert!(!valid_args(spec.grammar).is_empty(), "{:?}", spec.grammar);
         assert!(!invalid(spec.grammar).is_empty(), "{:?}", spec.grammar);
     }
+}
+
+#[test]
+fn a_setpoint_at_or_below_the_ground_is_refused_with_its_reason() {
+    let mut s = server(None);
+    let mut sess = Session::new();
+    for frame in [
+        "set_sp_ned 3:0:0:0",
+        "set_sp_ned 0:0:0.5:0",
+        "set_sp_ned 0:0:-0:0",
+    ] {
+        let r = send(&mut s, &mut sess, frame);
+        assert_eq!((r.ret(), r.cmd()), (-2, 23), "{frame}");
+        assert_eq!(
+            r.msg(),
+            "Invalid arguments: setpoint at or below the ground (z >= 0; up is negative z): use land to descend"
+        );
+    }
+    assert!(s.backend().executed.is_empty(), "none reached the vehicle");
+    assert_eq!(send(&mut s, &mut sess, "set_sp_ned 3:0:-0.5:0").ret(), 0);
+}
+
+#[test]
+fn hand_built_commands_obey_the_same_number_and_ground_rules() {
+    use lluav_core::{Command, Number, Pose};
+    let ground = Pose {
+        x: 1.0,
+        y: 0.0,
+        z: 0.0,
+        yaw: 0.0,
+    };
+    assert_eq!(
+        Command::new(CommandId::SetSpNed, Args::Setpoint(ground)),
+        Err(ArgError::AtOrBelowGround)
+    );
+    let up = Pose { z: -1.0, ..ground };
+    assert!(Command::new(CommandId::SetSpNed, Args::Setpoint(up)).is_ok());
+    assert_eq!(
+        Command::new(CommandId::ApronVol, Args::Amount(Number::from(-0.5))),
+        Err(ArgError::OutOfRange)
+    );
+    assert_eq!(
+        Command::new(CommandId::Ara8Pitch, Args::Angle(90.5)),
+        Err(ArgError::OutOfRange)
+    );
+    // A number parsed from a frame keeps its text, so that it encodes as
+    // sent and a backend compares its range with what the client meant.
+    let c = parse("apron_vol 60.000001").unwrap();
+    assert_eq!(c.to_string(), "apron_vol 60.000001");
+    let Args::Amount(v) = c.args() else {
+        panic!("{c:?}")
+    };
+    assert!(v.above(60.0) && v.value() == 60.0);
+    assert_ne!(*v, Number::from(60.0));
+}
+
+/// Every code point inside a name: refused exactly when it is a separator,
+/// or a Unicode control (Cc) or format (Cf) character, by the Unicode
+/// tables of the `regex` crate.
+#[test]
+fn names_refuse_exactly_separators_and_unicode_control_and_format_characters() {
+    let invisible = regex::Regex::new(r"^[\p{Cc}\p{Cf}]$").unwrap();
+    let mut refused = 0;
+    for c in (0..=0x10_FFFF).filter_map(char::from_u32) {
+        let frame = format!("rm_map a{c}b");
+        let expected = c == '/' || c == '\\' || invisible.is_match(c.encode_utf8(&mut [0; 4]));
+        assert_eq!(parse(&frame).is_err(), expected, "U+{:04X}", u32::from(c));
+        refused += usize::from(expected);
+    }
+    assert!(refused > 65 + 150, "{refused}");
 }

@@ -18,8 +18,13 @@
 //! the grammar's alphabet. `numbers` in `fuzz/` runs the same comparisons
 //! on arbitrary input; the whole 2^32 bit patterns were compared once
 //! (BENCHMARKS.md).
+//! - `Number::cmp_f32(bound)` orders the exact decimal a client sent
+//!   against the decimal `bound` is written as, as written out plainly
+//!   here with both as fixed-point digit strings.
 
-use lluav_core::number::{MAX_LEN, format_f32, parse_f32};
+use std::cmp::Ordering;
+
+use lluav_core::number::{MAX_LEN, Number, format_f32, parse_f32};
 
 /// Per exponent: the lowest and highest `EDGE` mantissas and every
 /// `STRIDE`th one.
@@ -93,10 +98,8 @@ impl Rng {
 /// anywhere or none, leading zeros sometimes, an exponent sometimes.
 fn random_decimal(rng: &mut Rng, s: &mut String) {
     s.clear();
-    match rng.below(4) {
-        0 => s.push('-'),
-        1 => s.push('+'),
-        _ => {}
+    if rng.chance(3) {
+        s.push('-');
     }
     let limit = [8, 20, 40, 200][rng.below(4) as usize];
     let digits = 1 + rng.below(limit) as usize;
@@ -255,14 +258,19 @@ fn is_core_word(text: &str) -> bool {
         .any(|w| word.eq_ignore_ascii_case(w))
 }
 
+/// The request grammar reads what `core` reads, less its words and a
+/// leading `+` (DESIGN.md: one number grammar, `-?` only).
 #[test]
-fn the_parser_accepts_exactly_the_decimals_core_accepts() {
+fn the_parser_accepts_exactly_the_decimals_core_accepts_without_a_leading_plus() {
     let mut rng = Rng(7);
     let mut text = String::new();
     let mut accepted = 0;
     for _ in 0..1_000_000 {
         random_garble(&mut rng, &mut text);
-        let core = text.parse::<f32>().ok().filter(|_| !is_core_word(&text));
+        let core = text
+            .parse::<f32>()
+            .ok()
+            .filter(|_| !is_core_word(&text) && !text.starts_with('+'));
         assert_eq!(
             parse_f32(&text).map(f32::to_bits),
             core.map(f32::to_bits),
@@ -300,6 +308,11 @@ fn words_hex_and_malformed_numbers_are_refused() {
         "inf",
         "-inf",
         "+Infinity",
+        "+1",
+        "+0",
+        "+.5",
+        "1 5",
+        "- 1",
         "1_000",
         "١",
     ] {
@@ -357,4 +370,133 @@ fn values_read_back_as_clients_sent_them() {
     ] {
         assert_eq!(format_f32(v).as_str(), text);
     }
+}
+
+/// `text` (a decimal of at most 60 integer and 60 fraction digits) as its
+/// sign and 120 digits of fixed point, for comparing exactly by strings.
+fn fixed_point(text: &str) -> (bool, String) {
+    let (negative, body) = match text.strip_prefix('-') {
+        Some(rest) => (true, rest),
+        None => (false, text),
+    };
+    let (mantissa, exp) = match body.split_once(['e', 'E']) {
+        Some((m, e)) => (m, e.parse::<i64>().unwrap()),
+        None => (body, 0),
+    };
+    let (int, frac) = mantissa.split_once('.').unwrap_or((mantissa, ""));
+    let digits = format!("{int}{frac}");
+    // The digit at index i has the value 10^(point - 1 - i).
+    let point = int.len() as i64 + exp;
+    let mut fixed = vec![b'0'; 120];
+    for (i, d) in digits.bytes().enumerate() {
+        let at = 60 - point + i as i64;
+        assert!((0..120).contains(&at), "{text} does not fit");
+        fixed[at as usize] = d;
+    }
+    let fixed = String::from_utf8(fixed).unwrap();
+    let zero = fixed.bytes().all(|d| d == b'0');
+    (negative && !zero, fixed)
+}
+
+fn exact_order(a: &str, b: &str) -> Ordering {
+    let ((na, a), (nb, b)) = (fixed_point(a), fixed_point(b));
+    match (na, nb) {
+        (false, false) => a.cmp(&b),
+        (true, true) => b.cmp(&a),
+        (true, false) => Ordering::Less,
+        (false, true) => Ordering::Greater,
+    }
+}
+
+/// A decimal of up to 25 digits with an exponent in -20..20, and bounds
+/// around it: its own `f32` (so that only the digits beyond an `f32`'s
+/// precision decide), the floats beside it, and a few round ones.
+#[test]
+fn numbers_as_sent_compare_with_bounds_exactly() {
+    let mut rng = Rng(11);
+    let mut compared = [0usize; 3];
+    for _ in 0..200_000 {
+        let mut text = String::new();
+        if rng.chance(3) {
+            text.push('-');
+        }
+        let digits = 1 + rng.below(25) as usize;
+        let point = rng.below(digits as u64 + 1) as usize;
+        for i in 0..digits {
+            if i == point {
+                text.push('.');
+            }
+            let d = if rng.chance(4) { 0 } else { rng.below(10) as u8 };
+            text.push(char::from(b'0' + d));
+        }
+        if rng.chance(2) {
+            text.push_str(&format!("e{}", rng.below(40) as i64 - 20));
+        }
+        let Some(n) = Number::parse(&text) else {
+            assert!(
+                parse_f32(&text).is_some_and(f32::is_infinite),
+                "{text} is in the grammar"
+            );
+            continue;
+        };
+        let v = n.value();
+        let beside = |up: bool| {
+            f32::from_bits(if (v > 0.0) == up {
+                v.to_bits() + 1
+            } else {
+                v.to_bits().saturating_sub(1)
+            })
+        };
+        for bound in [v, beside(true), beside(false), 0.0, -0.0, 90.0, -90.0, 0.1, 60.0] {
+            if !(bound == 0.0 || (1e-15..=1e15).contains(&bound.abs())) {
+                continue;
+            }
+            // As core writes it (Ryu's digits: at a tie between two
+            // shortest texts, the even one).
+            let written = format_f32(bound).as_str().to_owned();
+            let want = exact_order(&text, &written);
+            assert_eq!(n.cmp_f32(bound), Some(want), "{text} against {written}");
+            compared[(want as i8 + 1) as usize] += 1;
+        }
+    }
+    assert!(compared.iter().all(|&c| c > 1000), "{compared:?}");
+}
+
+#[test]
+fn a_bound_is_the_decimal_it_is_written_as() {
+    let n = |t: &'static str| Number::parse(t).unwrap();
+    // 0.1f32 is 0.100000001490116…, but the bound is the 0.1 it stands for.
+    assert_eq!(n("0.1").cmp_f32(0.1), Some(Ordering::Equal));
+    assert!(n("0.1000000001").above(0.1));
+    assert!(n("90.000001").above(90.0) && n("90.000001").value() == 90.0);
+    assert!(!n("90.0000000000").above(90.0));
+    assert!(n("-1e-50").below(0.0) && n("-1e-50").value() == 0.0);
+    assert!(!n("-0").below(0.0));
+    assert_eq!(n("1").cmp_f32(f32::NAN), None);
+    assert!(Number::from(0.5).below(0.75) && !Number::from(0.5).above(0.5));
+}
+
+#[test]
+fn numbers_are_equal_when_their_values_as_sent_are() {
+    let n = |t: &'static str| Number::parse(t).unwrap();
+    assert_eq!(n("1.50"), n("1.5"));
+    assert_eq!(n("15e-1"), Number::from(1.5));
+    assert_eq!(Number::from(0.1), n("0.1"));
+    assert_ne!(n("90.000001"), n("90"));
+    assert_eq!(n("-0"), n("0"));
+}
+
+#[test]
+fn numbers_in_reasons_are_short() {
+    let show = |n: Number<'_>| n.to_string();
+    assert_eq!(show(Number::parse("1e38").unwrap()), "1e38");
+    assert_eq!(show(Number::from(1e38)), "1e38");
+    assert_eq!(show(Number::from(20_000.0)), "20000");
+    assert_eq!(show(Number::from(0.1)), "0.1");
+    assert_eq!(show(Number::from(-0.0)), "0");
+    assert_eq!(show(Number::parse("-0.00").unwrap()), "0");
+    assert_eq!(show(Number::parse("60.000001").unwrap()), "60.000001");
+    let long = format!("1{}", "0".repeat(38));
+    assert_eq!(show(Number::parse(&long).unwrap()), "1e38");
+    assert!(Number::parse("+1").is_none() && Number::parse("1e39").is_none());
 }

@@ -46,8 +46,8 @@ impl Owned {
             Owned::Flag(b) => Args::Flag(*b),
             Owned::OptCount(n) => Args::OptCount(*n),
             Owned::Pwm(n) => Args::Pwm(*n),
-            Owned::Amount(v) => Args::Amount(*v),
-            Owned::OptAmount(v) => Args::OptAmount(*v),
+            Owned::Amount(v) => Args::Amount((*v).into()),
+            Owned::OptAmount(v) => Args::OptAmount(v.map(Into::into)),
             Owned::Angle(v) => Args::Angle(*v),
             Owned::Name(s) => Args::Name(s),
             Owned::OptName(s) => Args::OptName(s.as_deref()),
@@ -101,6 +101,11 @@ fn finite() -> impl Strategy<Value = f32> {
 
 fn non_negative() -> impl Strategy<Value = f32> {
     finite().prop_map(f32::abs)
+}
+
+/// A setpoint's z: above the ground, so below 0.
+fn up() -> impl Strategy<Value = f32> {
+    finite().prop_filter_map("above the ground", |v| Some(-v.abs()).filter(|&z| z < 0.0))
 }
 
 const NAME: &str = "[A-Za-z0-9_é]([A-Za-z0-9_. é-]{0,20}[A-Za-z0-9_é])?";
@@ -160,8 +165,8 @@ fn owned_args(g: Grammar) -> BoxedStrategy<Owned> {
         Grammar::SetParam => ("[A-Za-z0-9_.-]{1,64}", TEXT)
             .prop_map(|(n, v)| Owned::SetParam(n, v))
             .boxed(),
-        Grammar::Setpoint => [finite(), finite(), finite(), finite()]
-            .prop_map(Owned::Setpoint)
+        Grammar::Setpoint => (finite(), finite(), up(), finite())
+            .prop_map(|(x, y, z, yaw)| Owned::Setpoint([x, y, z, yaw]))
             .boxed(),
         Grammar::Point => [finite(), finite(), finite()].prop_map(Owned::Point).boxed(),
         Grammar::Pose => [finite(), finite(), finite(), finite()]

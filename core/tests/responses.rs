@@ -320,3 +320,30 @@ fn integers_are_written_exactly_across_the_whole_range() {
         assert_eq!(i, values.iter().map(|v| *v as i64).collect::<Vec<_>>());
     }
 }
+
+/// Writes -0 as an `f32` and an `f64`, alone and in an array.
+struct NegativeZero;
+
+impl Backend for NegativeZero {
+    fn armed(&self) -> bool {
+        false
+    }
+
+    fn execute(&mut self, _: &Command<'_>, _: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
+        out.f32("pitch", -0.0).f64("roll", -0.0).array("both", |a| {
+            a.f32(-0.0).f64(-0.0).f32(-1.5);
+        });
+        Ok(Step::Done)
+    }
+}
+
+#[test]
+fn minus_zero_is_written_as_zero() {
+    let mut s = Server::new(NegativeZero, || 0, Auth::new(None).unwrap());
+    let mut out = [0u8; 256];
+    let reply = s.handle(&mut Session::new(), Message::Text(b"lidarpose"), &mut out);
+    assert_eq!(
+        reply,
+        Outcome::Reply(r#"{"ret":0,"cmd":11,"ts":0,"pitch":0.0,"roll":0.0,"both":[0.0,0.0,-1.5]}"#)
+    );
+}

@@ -1,5 +1,6 @@
-//! Password guessing limited per session and per client address
-//! (DESIGN.md, "Sessions and gates").
+//! Password guessing limited per client, with a table that cannot be
+//! flushed and a budget across all clients (DESIGN.md, "Sessions and
+//! gates").
 
 mod common;
 
@@ -9,33 +10,48 @@ use std::net::{IpAddr, Ipv4Addr, Ipv6Addr};
 use std::rc::Rc;
 
 use common::*;
-use lluav_core::throttle::{MAX_WRONG_PASSWORDS, THROTTLE_CAPACITY};
-use lluav_core::{Auth, Message, Outcome, Server, Session};
+use lluav_core::throttle::{DEFAULT_RATE, MAX_WRONG_PASSWORDS, Slot, THROTTLE_CAPACITY, Throttle};
+use lluav_core::{Auth, Message, Outcome, Peer, Server, Session};
 use proptest::prelude::*;
 
 const THROTTLED: &str = "Too many wrong passwords, retry later";
+const WRONG: &str = "Wrong password!";
 const BASE_MS: u32 = 30_000;
 const MAX_MS: u32 = 15 * 60_000;
+/// A budget too large to matter, for the tests of the per-client rules.
+const UNLIMITED: u16 = 1000;
+
+/// A server with a clock the test moves and a table of any size.
+type Rigged = Server<MockVehicle, Box<dyn Fn() -> i64>, Box<[Slot]>>;
 
 /// A server whose clock the test moves.
 struct Rig {
     now: Rc<Cell<i64>>,
-    server: Server<MockVehicle, Box<dyn Fn() -> i64>>,
+    server: Rigged,
 }
 
 impl Rig {
+    /// The default table, without a budget that matters.
     fn new() -> Rig {
+        Rig::with(THROTTLE_CAPACITY, UNLIMITED)
+    }
+
+    /// A table of `capacity` records and a budget of `rate` per second.
+    fn with(capacity: usize, rate: u16) -> Rig {
         let now = Rc::new(Cell::new(TS));
         let clock = Rc::clone(&now);
-        let auth = Auth::new(Some("pw")).unwrap().with_lockout(BASE_MS, MAX_MS);
+        let throttle = Throttle::new(BASE_MS, MAX_MS)
+            .with_table(vec![Slot::EMPTY; capacity].into_boxed_slice())
+            .with_rate(rate);
+        let auth = Auth::new(Some("pw")).unwrap().with_throttle(throttle);
         Rig {
             now,
             server: Server::new(MockVehicle::default(), Box::new(move || clock.get()), auth),
         }
     }
 
-    fn open(&mut self, addr: impl Into<IpAddr>) -> Session {
-        self.server.open(Some(addr.into()))
+    fn open(&mut self, peer: impl Into<Who>) -> Session {
+        self.server.open(Some(peer.into().0))
     }
 
     fn advance(&mut self, ms: u32) {
@@ -43,8 +59,8 @@ impl Rig {
     }
 
     /// Ret and message of one login, on a connection of its own.
-    fn login(&mut self, addr: impl Into<IpAddr>, password: &str) -> (i64, String) {
-        let mut session = self.open(addr);
+    fn login(&mut self, peer: impl Into<Who>, password: &str) -> (i64, String) {
+        let mut session = self.open(peer);
         self.login_on(&mut session, password)
     }
 
@@ -62,15 +78,32 @@ impl Rig {
         )
     }
 
-    /// Five wrong passwords from `addr`, each on a new connection.
-    fn guess_five_times(&mut self, addr: impl Into<IpAddr> + Copy) {
+    /// Five wrong passwords from `peer`, each on a new connection.
+    fn guess_five_times(&mut self, peer: impl Into<Who> + Copy) {
         for i in 0..MAX_WRONG_PASSWORDS {
-            assert_eq!(
-                self.login(addr, "guess"),
-                (-1, "Wrong password!".into()),
-                "guess {i}"
-            );
+            assert_eq!(self.login(peer, "guess"), (-1, WRONG.into()), "guess {i}");
         }
+    }
+}
+
+/// Whoever a test connects as: an address or a client key.
+struct Who(Peer);
+
+impl From<Ipv4Addr> for Who {
+    fn from(a: Ipv4Addr) -> Who {
+        Who(IpAddr::from(a).into())
+    }
+}
+
+impl From<Ipv6Addr> for Who {
+    fn from(a: Ipv6Addr) -> Who {
+        Who(IpAddr::from(a).into())
+    }
+}
+
+impl From<Peer> for Who {
+    fn from(p: Peer) -> Who {
+        Who(p)
     }
 }
 
@@ -182,20 +215,118 @@ fn ipv6_addresses_count_by_their_64_prefix_and_mapped_ipv4_as_ipv4() {
 }
 
 #[test]
-fn a_full_table_drops_the_least_recently_touched_address() {
+fn a_full_table_never_drops_a_locked_address_and_checks_no_password_from_a_new_one() {
     let mut rig = Rig::new();
     rig.guess_five_times(ATTACKER);
-    for i in 0..THROTTLE_CAPACITY {
+    for i in 1..THROTTLE_CAPACITY {
         rig.advance(1);
         let other = Ipv4Addr::new(10, 0, 0, u8::try_from(i).unwrap());
-        rig.login(other, "guess");
+        assert_eq!(rig.login(other, "guess"), (-1, WRONG.into()));
     }
-    assert_eq!(
-        rig.login(ATTACKER, "pw").0,
-        0,
-        "the attacker's record was the oldest"
-    );
+    // Full of records that still matter: a newcomer's password is not
+    // checked, right or wrong, and the locked address stays locked.
+    for password in ["pw", "guess"] {
+        assert_eq!(rig.login(OPERATOR, password), (-1, THROTTLED.into()));
+    }
+    assert_eq!(rig.login(ATTACKER, "pw"), (-1, THROTTLED.into()));
+    // A recorded address is still checked.
     assert_eq!(rig.login(Ipv4Addr::new(10, 0, 0, 1), "pw").0, 0);
+}
+
+#[test]
+fn a_record_idle_for_a_first_lockout_makes_room_but_a_locked_one_never_does() {
+    let mut rig = Rig::new();
+    rig.guess_five_times(ATTACKER);
+    for i in 1..THROTTLE_CAPACITY {
+        rig.advance(1);
+        rig.login(Ipv4Addr::new(10, 0, 0, u8::try_from(i).unwrap()), "guess");
+    }
+    rig.advance(BASE_MS);
+    // The one-guess records are spent now, and so is the attacker's first
+    // lockout; the newcomer takes the slot idle longest: the attacker's.
+    assert_eq!(rig.login(OPERATOR, "guess"), (-1, WRONG.into()));
+    assert_eq!(rig.login(OPERATOR, "pw").0, 0);
+    // Locked twice, for 60 s: still locked when its last guess is one
+    // first lockout old, so a flood of newcomers cannot push it out.
+    rig.guess_five_times(ATTACKER);
+    rig.advance(BASE_MS);
+    rig.guess_five_times(ATTACKER);
+    for i in 1..THROTTLE_CAPACITY {
+        rig.advance(1);
+        rig.login(Ipv4Addr::new(10, 0, 2, u8::try_from(i).unwrap()), "guess");
+    }
+    rig.advance(BASE_MS);
+    for i in 1..THROTTLE_CAPACITY {
+        rig.advance(1);
+        let newcomer = Ipv4Addr::new(10, 0, 3, u8::try_from(i).unwrap());
+        assert_eq!(rig.login(newcomer, "guess"), (-1, WRONG.into()));
+    }
+    assert_eq!(rig.login(ATTACKER, "pw"), (-1, THROTTLED.into()));
+    rig.advance(2 * BASE_MS);
+    assert_eq!(rig.login(ATTACKER, "pw").0, 0);
+}
+
+#[test]
+fn a_host_sized_table_remembers_thousands_of_addresses() {
+    let mut rig = Rig::with(4096, UNLIMITED);
+    rig.guess_five_times(ATTACKER);
+    for i in 0..4000u32 {
+        rig.advance(1);
+        let [_, _, a, b] = i.to_be_bytes();
+        assert_eq!(rig.login(Ipv4Addr::new(10, 1, a, b), "guess"), (-1, WRONG.into()));
+    }
+    assert_eq!(rig.login(ATTACKER, "pw"), (-1, THROTTLED.into()));
+    assert_eq!(rig.login(OPERATOR, "pw").0, 0);
+}
+
+#[test]
+fn the_budget_limits_wrong_passwords_checked_across_all_addresses() {
+    const RATE: u16 = 4;
+    let mut rig = Rig::with(1024, RATE);
+    let many = |i: u32| Ipv4Addr::new(10, 2, (i >> 8) as u8, i as u8);
+    // A burst of RATE wrong passwords from as many addresses is checked;
+    // then nothing is, not even the right password, from anyone.
+    for i in 0..u32::from(RATE) {
+        assert_eq!(rig.login(many(i), "guess"), (-1, WRONG.into()), "guess {i}");
+    }
+    assert_eq!(rig.login(many(99), "guess"), (-1, THROTTLED.into()));
+    assert_eq!(rig.login(OPERATOR, "pw"), (-1, THROTTLED.into()));
+    // It refills at RATE per second: one check per 250 ms, whoever sends.
+    let mut checked = 0;
+    for step in 0..4000u32 {
+        rig.advance(1);
+        if rig.login(many(100 + step), "guess").1 == WRONG {
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 4 * u32::from(RATE), "four seconds, {RATE} per second");
+    rig.advance(250);
+    assert_eq!(rig.login(OPERATOR, "pw").0, 0, "a right password spends nothing");
+    assert_eq!(rig.login(OPERATOR, "pw").0, 0);
+}
+
+#[test]
+fn the_default_budget_checks_one_sessions_five_guesses_at_once() {
+    let mut rig = Rig::with(THROTTLE_CAPACITY, DEFAULT_RATE);
+    let mut session = rig.open(ATTACKER);
+    for _ in 1..MAX_WRONG_PASSWORDS {
+        assert_eq!(rig.login_on(&mut session, "guess"), (-1, WRONG.into()));
+    }
+    let mut out = vec![0u8; 4096];
+    let outcome = rig
+        .server
+        .handle(&mut session, Message::Text(b"login guess"), &mut out);
+    assert!(matches!(outcome, Outcome::ReplyThenClose(_, code) if code.code() == 1008));
+}
+
+#[test]
+fn client_keys_are_throttled_apart_from_each_other_and_from_addresses() {
+    let mut rig = Rig::new();
+    let mallory = Peer::Client([0xAA; 16]);
+    rig.guess_five_times(mallory);
+    assert_eq!(rig.login(mallory, "pw"), (-1, THROTTLED.into()));
+    assert_eq!(rig.login(Peer::Client([0xAB; 16]), "pw").0, 0);
+    assert_eq!(rig.login(Ipv4Addr::new(170, 170, 170, 170), "pw").0, 0);
 }
 
 #[test]
@@ -204,14 +335,13 @@ fn sessions_without_an_address_are_limited_per_connection_only() {
     for _ in 0..3 {
         let mut sess = Session::new();
         for _ in 1..MAX_WRONG_PASSWORDS {
-            assert_eq!(send(&mut s, &mut sess, "login guess").msg(), "Wrong password!");
+            assert_eq!(send(&mut s, &mut sess, "login guess").msg(), WRONG);
         }
     }
     assert_eq!(send(&mut s, &mut Session::new(), "login pw").ret(), 0);
 }
 
-/// One step of a guessing scenario: which of four addresses, what it sends,
-/// and how far the clock moves first.
+/// What one step of a guessing scenario sends.
 #[derive(Clone, Debug)]
 enum Attempt {
     Wrong,
@@ -219,16 +349,61 @@ enum Attempt {
     Logout,
 }
 
+/// Table capacity and budget of the property below: small, so that a few
+/// addresses fill the table and a few steps spend the budget.
+const MODEL_SLOTS: usize = 4;
+const MODEL_RATE: u16 = 3;
+
+/// One address's history in the model.
+struct Entry {
+    wrong: u8,
+    lockouts: u32,
+    until: i64,
+    last_wrong: i64,
+}
+
 /// The rules of DESIGN.md, written out plainly, for the property below.
-#[derive(Default)]
 struct Model {
-    records: HashMap<u8, (u8, u32, i64)>,
+    records: HashMap<u8, Entry>,
+    /// The budget, as milliseconds of refill banked: a check needs one
+    /// interval's worth, and at most `MODEL_RATE` intervals are banked.
+    credit: i64,
+    at: i64,
 }
 
 impl Model {
+    // 1000 ms / MODEL_RATE, rounded up: never more than the rate.
+    const INTERVAL: i64 = (1000 + MODEL_RATE as i64 - 1) / MODEL_RATE as i64;
+
+    fn new(now: i64) -> Model {
+        Model {
+            records: HashMap::new(),
+            credit: Model::INTERVAL * i64::from(MODEL_RATE),
+            at: now,
+        }
+    }
+
+    /// Whether a record may go to make room.
+    fn spent(e: &Entry, now: i64) -> bool {
+        now >= e.until && now - e.last_wrong >= i64::from(BASE_MS)
+    }
+
     fn login(&mut self, addr: u8, attempt: &Attempt, now: i64) -> &'static str {
-        let (wrong, lockouts, until) = self.records.entry(addr).or_insert((0, 0, i64::MIN));
-        if now < *until {
+        let full = Model::INTERVAL * i64::from(MODEL_RATE);
+        self.credit = (self.credit + (now - self.at)).min(full);
+        self.at = now;
+        match self.records.get(&addr) {
+            Some(e) if now < e.until => return THROTTLED,
+            Some(_) => {}
+            None => {
+                let room =
+                    self.records.len() < MODEL_SLOTS || self.records.values().any(|e| Model::spent(e, now));
+                if !room {
+                    return THROTTLED;
+                }
+            }
+        }
+        if self.credit < Model::INTERVAL {
             return THROTTLED;
         }
         match attempt {
@@ -238,35 +413,60 @@ impl Model {
             }
             Attempt::Logout => "",
             Attempt::Wrong => {
-                *wrong += 1;
-                if *wrong == MAX_WRONG_PASSWORDS {
-                    let ms = (u64::from(BASE_MS) << *lockouts).min(u64::from(MAX_MS));
-                    *until = now + i64::try_from(ms).unwrap();
-                    *lockouts += 1;
-                    *wrong = 0;
-                }
-                "Wrong password!"
+                self.credit -= Model::INTERVAL;
+                self.wrong(addr, now);
+                WRONG
             }
+        }
+    }
+
+    fn wrong(&mut self, addr: u8, now: i64) {
+        if !self.records.contains_key(&addr) && self.records.len() == MODEL_SLOTS {
+            let oldest = self
+                .records
+                .iter()
+                .filter(|(_, e)| Model::spent(e, now))
+                .min_by_key(|(_, e)| e.last_wrong)
+                .map(|(a, _)| *a);
+            self.records.remove(&oldest.expect("room was checked"));
+        }
+        let e = self.records.entry(addr).or_insert(Entry {
+            wrong: 0,
+            lockouts: 0,
+            until: i64::MIN,
+            last_wrong: now,
+        });
+        e.wrong += 1;
+        e.last_wrong = now;
+        if e.wrong == MAX_WRONG_PASSWORDS {
+            let ms = (u64::from(BASE_MS) << e.lockouts).min(u64::from(MAX_MS));
+            e.until = now + i64::try_from(ms).unwrap();
+            e.lockouts += 1;
+            e.wrong = 0;
         }
     }
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(256))]
+    #![proptest_config(ProptestConfig::with_cases(512))]
 
     /// Whatever the interleaving of addresses, connections and waits, the
-    /// server answers every login as the plainly written rules say, so no
-    /// address ever gets a sixth checked guess inside a lockout.
+    /// server answers every login as the plainly written rules say: no
+    /// address gets a sixth checked guess inside a lockout, a full table
+    /// drops no record that still matters, and no more wrong passwords are
+    /// checked than the budget allows. (Every step moves the clock, so that
+    /// no two records were touched at the same millisecond and "idle
+    /// longest" is one record.)
     #[test]
-    fn logins_follow_the_per_address_rules(
+    fn logins_follow_the_per_address_rules_and_the_budget(
         steps in prop::collection::vec(
-            (0u8..4, prop_oneof![3 => Just(Attempt::Wrong), 1 => Just(Attempt::Right), 1 => Just(Attempt::Logout)],
-             prop_oneof![Just(0u32), 1u32..2_000, 25_000u32..70_000]),
-            1..120,
+            (0u8..7, prop_oneof![3 => Just(Attempt::Wrong), 1 => Just(Attempt::Right), 1 => Just(Attempt::Logout)],
+             prop_oneof![1u32..400, 400u32..2_000, 25_000u32..70_000]),
+            1..160,
         ),
     ) {
-        let mut rig = Rig::new();
-        let mut model = Model::default();
+        let mut rig = Rig::with(MODEL_SLOTS, MODEL_RATE);
+        let mut model = Model::new(rig.now.get());
         for (addr, attempt, wait) in steps {
             rig.advance(wait);
             let ip = Ipv4Addr::new(172, 16, 0, addr);

@@ -215,7 +215,7 @@ mod tests {
     #[test]
     fn commands_the_board_cannot_do_are_unsupported() {
         let mut s = board();
-        for frame in ["takeoff", "sysinfo", "set_sp_ned 1:2:3:0"] {
+        for frame in ["takeoff", "sysinfo", "set_sp_ned 1:2:-3:0"] {
             let r = call(&mut s, frame);
             assert_eq!(
                 (r["ret"].as_i64(), r["msg"].as_str()),

@@ -128,7 +128,7 @@ impl<M: RawMutex, B: Backend, C: Clock> Service for SharedServer<M, B, C> {
         Self: 'a;
 
     async fn open(&self, peer: Option<IpAddr>) -> Session {
-        self.server.lock().await.open(peer)
+        self.server.lock().await.open(peer.map(lluav_core::Peer::from))
     }
 
     async fn handler(&self) -> Locked<'_, M, B, C> {

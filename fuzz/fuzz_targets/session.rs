@@ -3,14 +3,17 @@
 //! state the input flips and a clock the input moves. Every text message
 //! gets exactly one JSON object with integer ret, cmd and ts (at once, or
 //! through `resume` when the vehicle waits), or a close code; the gates
-//! hold; and every `login` is answered as DESIGN.md's per-address
-//! throttling rules say, written out plainly in `Logins`.
+//! hold; and every `login` is answered as DESIGN.md's throttling rules say
+//! (per address, a table that drops no record that still matters, a budget
+//! across all addresses), written out plainly in `Logins`.
 //!
 //! Input: the first byte's low bit sets a password (`pw`); the rest is split
 //! at `\n` into messages, except these control lines: `\x01arm` and
 //! `\x01disarm` flip the vehicle's armed state, `\x01binary` sends a binary
 //! message, `\x01connN` closes the connection and opens a new one from
-//! address `N % 4`, `\x01wait` moves the clock 20 s on. A connection the
+//! address `N % 8` (the throttle's table holds [`SLOTS`]), `\x01wait` moves
+//! the clock 20 s on, `\x01tick` 200 ms; every line moves it 1 ms (so no
+//! two records are touched at the same millisecond). A connection the
 //! server closed is reopened from the same address. The vehicle waits for
 //! an "autopilot" on `takeoff` and answers it through `resume`. Seeds are
 //! therefore readable scripts (see `seeds/session`).
@@ -26,13 +29,22 @@ use std::rc::Rc;
 use libfuzzer_sys::fuzz_target;
 use lluav_core::{
     Args, Auth, Backend, CloseCode, Command, CommandId, Context, Failure, Fields, Message, Outcome, Role,
-    Server, Session, SessionId, Step, Ticket, error::messages, parse, parse::split, table::lookup,
-    throttle::MAX_WRONG_PASSWORDS,
+    Server, Session, SessionId, Step, Ticket,
+    error::messages,
+    parse,
+    parse::split,
+    table::lookup,
+    throttle::{MAX_WRONG_PASSWORDS, Slot, Throttle},
 };
 
 const LOCKOUT_MS: u32 = 30_000;
 const MAX_LOCKOUT_MS: u32 = 15 * 60_000;
 const WAIT_MS: i64 = 20_000;
+const TICK_MS: i64 = 200;
+/// Records the throttle's table holds: half the addresses.
+const SLOTS: usize = 4;
+/// Wrong passwords checked per second across all addresses.
+const RATE: u16 = 8;
 
 enum Line<'a> {
     Text(&'a [u8]),
@@ -40,6 +52,7 @@ enum Line<'a> {
     Arm(bool),
     Connect(u8),
     Wait,
+    Tick,
 }
 
 fn lines(data: &[u8]) -> impl Iterator<Item = Line<'_>> {
@@ -48,8 +61,9 @@ fn lines(data: &[u8]) -> impl Iterator<Item = Line<'_>> {
         b"\x01disarm" => Line::Arm(false),
         b"\x01binary" => Line::Binary,
         b"\x01wait" => Line::Wait,
+        b"\x01tick" => Line::Tick,
         other => match other.strip_prefix(b"\x01conn") {
-            Some(n) => Line::Connect(n.first().copied().unwrap_or(0) % 4),
+            Some(n) => Line::Connect(n.first().copied().unwrap_or(0) % 8),
             None => Line::Text(other),
         },
     })
@@ -181,20 +195,51 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
     }
 }
 
-/// DESIGN.md's per-address rules, written out plainly: what a `login`
-/// must be answered.
-#[derive(Default)]
+/// One address's history: wrong passwords in a row, lockouts so far,
+/// locked until, the last wrong password.
+struct Entry {
+    wrong: u8,
+    lockouts: u32,
+    until: i64,
+    last_wrong: i64,
+}
+
+/// DESIGN.md's throttling rules, written out plainly: what a `login` must
+/// be answered.
 struct Logins {
-    /// Per address: wrong passwords in a row, lockouts so far, locked until.
-    records: HashMap<u8, (u8, u32, i64)>,
+    records: HashMap<u8, Entry>,
+    /// The budget as milliseconds of refill banked: a check needs one
+    /// interval's worth; at most `RATE` intervals are banked.
+    credit: i64,
+    at: i64,
 }
 
 impl Logins {
+    const INTERVAL: i64 = (1000 + RATE as i64 - 1) / RATE as i64;
+
+    fn new(now: i64) -> Logins {
+        Logins {
+            records: HashMap::new(),
+            credit: Logins::INTERVAL * i64::from(RATE),
+            at: now,
+        }
+    }
+
+    /// Whether a record may go to make room for another.
+    fn spent(e: &Entry, now: i64) -> bool {
+        now >= e.until && now - e.last_wrong >= i64::from(LOCKOUT_MS)
+    }
+
     /// The `msg` a login with `attempt` from `addr` must get ("" for ret 0).
     fn expect(&mut self, addr: u8, attempt: &str, password: Option<&str>, now: i64) -> &'static str {
-        let (wrong, lockouts, until) = self.records.entry(addr).or_insert((0, 0, i64::MIN));
-        if now < *until {
-            return messages::THROTTLED;
+        self.credit = (self.credit + (now - self.at)).min(Logins::INTERVAL * i64::from(RATE));
+        self.at = now;
+        let room = self.records.len() < SLOTS || self.records.values().any(|e| Logins::spent(e, now));
+        match self.records.get(&addr) {
+            Some(e) if now < e.until => return messages::THROTTLED,
+            None if !room => return messages::THROTTLED,
+            _ if self.credit < Logins::INTERVAL => return messages::THROTTLED,
+            _ => {}
         }
         if attempt == "1025" || password == Some(attempt) {
             self.records.remove(&addr);
@@ -203,14 +248,32 @@ impl Logins {
         if attempt == "0315" {
             return "";
         }
-        *wrong += 1;
-        if *wrong >= MAX_WRONG_PASSWORDS {
+        self.credit -= Logins::INTERVAL;
+        if !self.records.contains_key(&addr) && self.records.len() == SLOTS {
+            let oldest = self
+                .records
+                .iter()
+                .filter(|(_, e)| Logins::spent(e, now))
+                .min_by_key(|(_, e)| e.last_wrong)
+                .map(|(a, _)| *a)
+                .expect("room was checked");
+            self.records.remove(&oldest);
+        }
+        let e = self.records.entry(addr).or_insert(Entry {
+            wrong: 0,
+            lockouts: 0,
+            until: i64::MIN,
+            last_wrong: now,
+        });
+        e.wrong += 1;
+        e.last_wrong = now;
+        if e.wrong >= MAX_WRONG_PASSWORDS {
             let ms = u64::from(LOCKOUT_MS)
-                .checked_shl(*lockouts)
+                .checked_shl(e.lockouts)
                 .map_or(u64::from(MAX_LOCKOUT_MS), |ms| ms.min(u64::from(MAX_LOCKOUT_MS)));
-            *until = now + i64::try_from(ms).expect("a lockout fits");
-            *lockouts += 1;
-            *wrong = 0;
+            e.until = now + i64::try_from(ms).expect("a lockout fits");
+            e.lockouts += 1;
+            e.wrong = 0;
         }
         messages::WRONG_PASSWORD
     }
@@ -226,7 +289,7 @@ fn ip(addr: u8) -> IpAddr {
     IpAddr::V4(Ipv4Addr::new(10, 0, 0, addr))
 }
 
-type Fuzzed = Server<Vehicle, Box<dyn Fn() -> i64>>;
+type Fuzzed = Server<Vehicle, Box<dyn Fn() -> i64>, [Slot; SLOTS]>;
 
 /// Sends `bytes` on `client` and checks the answer; returns whether the
 /// server closed the connection.
@@ -279,9 +342,12 @@ fuzz_target!(|data: &[u8]| {
     };
     let now = Rc::new(Cell::new(1_700_000_000_000_i64));
     let clock = Rc::clone(&now);
+    let throttle = Throttle::new(LOCKOUT_MS, MAX_LOCKOUT_MS)
+        .with_table([Slot::EMPTY; SLOTS])
+        .with_rate(RATE);
     let auth = Auth::new((first & 1 == 1).then_some("pw"))
         .expect("valid password")
-        .with_lockout(LOCKOUT_MS, MAX_LOCKOUT_MS);
+        .with_throttle(throttle);
     let vehicle = Vehicle {
         armed: false,
         before: None,
@@ -289,12 +355,13 @@ fuzz_target!(|data: &[u8]| {
         tickets: 0,
     };
     let mut server: Fuzzed = Server::new(vehicle, Box::new(move || clock.get()), auth);
-    let mut logins = Logins::default();
+    let mut logins = Logins::new(now.get());
     let mut client = Client {
         addr: 0,
-        session: server.open(Some(ip(0))),
+        session: server.open(Some(ip(0).into())),
     };
     for line in lines(script) {
+        now.set(now.get() + 1);
         let before = Before {
             gated: server.auth().password_required() && !client.session.logged_in(),
             role: client.session.role(),
@@ -313,6 +380,10 @@ fuzz_target!(|data: &[u8]| {
                 now.set(now.get() + WAIT_MS);
                 false
             }
+            Line::Tick => {
+                now.set(now.get() + TICK_MS);
+                false
+            }
             Line::Connect(addr) => {
                 client.addr = addr;
                 true
@@ -327,7 +398,7 @@ fuzz_target!(|data: &[u8]| {
         };
         if reconnect {
             server.close(&client.session);
-            client.session = server.open(Some(ip(client.addr)));
+            client.session = server.open(Some(ip(client.addr).into()));
         }
     }
 });

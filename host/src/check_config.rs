@@ -135,6 +135,8 @@ pub fn effective(s: &Settings) -> FileConfig {
         login_timeout: Some(l.login_timeout.as_secs()),
         idle_timeout: Some(l.idle_timeout.as_secs()),
         login_lockout: Some(s.login_lockout.as_secs()),
+        login_rate: Some(s.login_rate),
+        login_addresses: Some(s.login_addresses),
         allow_origin: Some(s.policy.origins()),
         allow_host: Some(s.policy.hosts()),
         tls_cert: s.tls.as_ref().map(|t| t.cert.clone()),

@@ -80,6 +80,14 @@ pub struct Cli {
     /// doubles with each further lockout, up to 15 minutes. [default: 30]
     #[arg(long, value_name = "SECS")]
     pub login_lockout: Option<u64>,
+    /// Wrong passwords checked per second from all addresses together
+    /// (1-1000); beyond it no password is checked. [default: 10]
+    #[arg(long, value_name = "N")]
+    pub login_rate: Option<u16>,
+    /// Addresses the login lockout remembers; when all still matter, a
+    /// password from a new address is not checked. [default: 4096]
+    #[arg(long, value_name = "N")]
+    pub login_addresses: Option<usize>,
     /// A web origin allowed to open sessions besides pages served by this
     /// server (e.g. `https://gcs.example:8443`); `*` allows any. Repeatable.
     #[arg(long, value_name = "URL")]
@@ -145,6 +153,10 @@ pub struct FileConfig {
     pub idle_timeout: Option<u64>,
     /// As `--login-lockout`, in seconds.
     pub login_lockout: Option<u64>,
+    /// As `--login-rate`.
+    pub login_rate: Option<u16>,
+    /// As `--login-addresses`.
+    pub login_addresses: Option<usize>,
     /// As `--allow-origin`, a list.
     pub allow_origin: Option<Vec<String>>,
     /// As `--allow-host`, a list.
@@ -193,6 +205,14 @@ pub enum ConfigError {
 
 /// The lockout of an address after 5 wrong passwords, unless configured.
 pub const DEFAULT_LOGIN_LOCKOUT: Duration = Duration::from_secs(30);
+/// Wrong passwords checked per second across all addresses, unless
+/// configured.
+pub const DEFAULT_LOGIN_RATE: u16 = 10;
+/// Addresses the login lockout remembers, unless configured (about 40
+/// bytes each).
+pub const DEFAULT_LOGIN_ADDRESSES: usize = 4096;
+/// The most `--login-addresses` may ask for (40 MiB of records).
+const MAX_LOGIN_ADDRESSES: usize = 1 << 20;
 
 /// The certificate chain and key `wss://` is served with.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -228,6 +248,10 @@ pub struct Settings {
     pub tls: Option<TlsFiles>,
     /// The first lockout of an address after wrong passwords.
     pub login_lockout: Duration,
+    /// Wrong passwords checked per second across all addresses.
+    pub login_rate: u16,
+    /// Addresses the login lockout remembers.
+    pub login_addresses: usize,
     /// The admin login value.
     pub admin_password: String,
     /// The logout login value.
@@ -285,6 +309,17 @@ impl Settings {
         if login_lockout.is_zero() {
             return Err(ConfigError::Invalid("--login-lockout must be > 0"));
         }
+        let login_rate = cli.login_rate.or(file.login_rate).unwrap_or(DEFAULT_LOGIN_RATE);
+        if !(1..=1000).contains(&login_rate) {
+            return Err(ConfigError::Invalid("--login-rate must be 1 to 1000"));
+        }
+        let login_addresses = cli
+            .login_addresses
+            .or(file.login_addresses)
+            .unwrap_or(DEFAULT_LOGIN_ADDRESSES);
+        if !(1..=MAX_LOGIN_ADDRESSES).contains(&login_addresses) {
+            return Err(ConfigError::Invalid("--login-addresses must be 1 to 1048576"));
+        }
         let mavlink = cli.mavlink.or(file.mavlink);
         if let Some(address) = &mavlink
             && ::mavlink::ConnectionAddress::parse_address(address).is_err()
@@ -304,6 +339,8 @@ impl Settings {
             policy,
             tls,
             login_lockout,
+            login_rate,
+            login_addresses,
             admin_password: file
                 .admin_password
                 .unwrap_or_else(|| lluav_core::session::DEFAULT_ADMIN_PASSWORD.to_owned()),
@@ -418,6 +455,7 @@ mod tests {
         assert_eq!(s.logout_password, "0315");
         assert!(!s.allow_no_password && !s.allow_default_admin);
         assert!(s.console);
+        assert_eq!((s.login_rate, s.login_addresses), (10, 4096));
     }
 
     #[test]
@@ -436,7 +474,8 @@ mod tests {
     fn network_limits_and_lists_come_from_flags_over_the_file() {
         let file: FileConfig = toml::from_str(
             "max_sessions_per_ip = 3\nlogin_timeout = 7\nallow_host = [\"drone.local\"]\n\
-             allow_origin = [\"https://gcs.example\"]\nlogin_lockout = 5\n",
+             allow_origin = [\"https://gcs.example\"]\nlogin_lockout = 5\nlogin_rate = 3\n\
+             login_addresses = 100\n",
         )
         .expect("valid TOML");
         let s = Settings::merge(
@@ -447,6 +486,8 @@ mod tests {
                 "4",
                 "--handshake-timeout",
                 "2",
+                "--login-addresses",
+                "50",
             ]),
             file,
         )
@@ -455,6 +496,7 @@ mod tests {
         assert_eq!(s.limits.login_timeout, Duration::from_secs(7));
         assert_eq!(s.limits.handshake_timeout, Duration::from_secs(2));
         assert_eq!(s.login_lockout, Duration::from_secs(5));
+        assert_eq!((s.login_rate, s.login_addresses), (3, 50));
         let loopback = std::net::IpAddr::V4(Ipv4Addr::LOCALHOST);
         assert!(
             s.policy
@@ -476,6 +518,9 @@ mod tests {
         assert!(refused(&["--allow-host", "drone.local:80"], ""));
         assert!(refused(&["--max-sessions-per-ip", "0"], ""));
         assert!(refused(&["--login-timeout", "0"], ""));
+        assert!(refused(&["--login-rate", "0"], ""));
+        assert!(refused(&[], "login_rate = 1001"));
+        assert!(refused(&["--login-addresses", "0"], ""));
         assert!(
             refused(&[], "tls_cert = \"cert.pem\""),
             "a certificate needs its key"

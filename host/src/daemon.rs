@@ -13,6 +13,7 @@ use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use lluav_core::throttle::{DEFAULT_MAX_LOCKOUT_MS, Slot, Throttle};
 use lluav_core::{Auth, AuthError, Clock, Message, Outcome, Server, Session};
 use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
@@ -49,8 +50,11 @@ impl Clock for SystemClock {
     }
 }
 
+/// The login throttle's table: as many records as `--login-addresses`.
+pub type LoginTable = Box<[Slot]>;
+
 /// The protocol server of the companion computer and vehicle `V`.
-pub type OnboardServer<V> = Server<Onboard<V>, SystemClock>;
+pub type OnboardServer<V> = Server<Onboard<V>, SystemClock, LoginTable>;
 
 /// The protocol server, shared by every connection.
 pub type Shared<V> = Arc<Mutex<OnboardServer<V>>>;
@@ -109,7 +113,7 @@ impl<V: Vehicle> Handler for Protocol<V> {
     type Session = Session;
 
     fn session(&self, peer: SocketAddr) -> Session {
-        self.locked(|server| server.open(Some(peer.ip())))
+        self.locked(|server| server.open(Some(peer.ip().into())))
     }
 
     async fn handle<'o>(
@@ -364,8 +368,8 @@ impl<V: Vehicle> Daemon<V> {
 
 /// The login state: the configured password, else the vehicle's stored
 /// one, else none — which is refused beyond loopback unless allowed, as
-/// the public admin value is.
-pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth, DaemonError> {
+/// the public admin value is; and the login throttle as configured.
+pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth<LoginTable>, DaemonError> {
     let password = settings.password.clone().or(stored);
     let beyond_loopback = !settings.bind.ip().is_loopback();
     if password.is_none() && beyond_loopback && !settings.allow_no_password {
@@ -383,7 +387,12 @@ pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth, 
     )
     .map(|auth| {
         let base = lockout_ms(settings.login_lockout);
-        auth.with_lockout(base, base.max(lluav_core::throttle::DEFAULT_MAX_LOCKOUT_MS))
+        let table = vec![Slot::EMPTY; settings.login_addresses].into_boxed_slice();
+        auth.with_throttle(
+            Throttle::new(base, base.max(DEFAULT_MAX_LOCKOUT_MS))
+                .with_table(table)
+                .with_rate(settings.login_rate),
+        )
     })
     .map_err(|e| {
         DaemonError::Password(match e {

@@ -75,7 +75,7 @@ fn values_the_vehicle_refuses_are_invalid_arguments_and_state_is_minus_one() {
 #[test]
 fn reasons_are_whole_however_long() {
     let mut h = Harness::new(1.0);
-    let name = format!("{}.json", "a_very_long_mission_file_name".repeat(5));
+    let name = format!("{}mission.json", "a_very_long_mission_directory_name/".repeat(4));
     let msg = h.fails(&format!("mission 1:missions/{name}"), -2);
     assert_eq!(msg, format!("Invalid arguments: missions/{name} does not exist"));
     assert!(msg.len() > 96, "longer than a cut reason would be");

@@ -110,10 +110,20 @@ fn setpoints_are_tracked_at_bounded_speed_in_ned() {
 fn setpoints_outside_the_fence_or_underground_are_refused() {
     let mut h = Harness::new(1.0);
     h.airborne();
-    assert_eq!(
-        h.fails("set_sp_ned 0:0:1:0", -2),
-        "Invalid arguments: z = 1 is below the ground (NED: up is negative)"
-    );
+    // At or below the ground: refused by the core's grammar, for every
+    // backend, and the vehicle keeps hovering where it was.
+    let before = h.state();
+    for frame in ["set_sp_ned 0:0:1:0", "set_sp_ned 3:0:0:0", "set_sp_ned 3:0:-0:0"] {
+        assert_eq!(
+            h.fails(frame, -2),
+            "Invalid arguments: setpoint at or below the ground (z >= 0; up is negative z): use land to descend",
+            "{frame}"
+        );
+    }
+    h.run_for(2.0);
+    let after = h.state();
+    assert_eq!(after["fsm"], "hover");
+    assert_eq!(after["position"], before["position"]);
     assert!(h.fails("set_sp_ned 900:0:-2:0", -2).contains("geofence_radius"));
     assert!(h.fails("set_sp_ned 0:0:-200:0", -2).contains("max_alt"));
     assert!(h.fails("zyhk 0.5,300", -2).contains("max_alt"));

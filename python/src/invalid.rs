@@ -36,17 +36,20 @@ impl From<ArgError> for Invalid {
 
 /// The core's reason in words.
 fn reason(e: ArgError) -> &'static str {
+    if let Some(reason) = e.reason() {
+        return reason;
+    }
     match e {
         ArgError::Missing => "an argument is missing or empty",
         ArgError::Unexpected => "unexpected arguments",
         ArgError::Malformed => "malformed (see the usage line for the allowed characters and separators)",
-        ArgError::NotANumber => "not a decimal number",
+        ArgError::NotANumber => "not a decimal number (digits with an optional '-', fraction and exponent)",
         ArgError::NotFinite => "a number is not finite (NaN, infinite, or beyond the 32-bit float range)",
         ArgError::OutOfRange => "a number is out of range",
         ArgError::NotAFlag => "a flag must be 0 or 1",
         ArgError::UnsafePath => {
-            "not a safe name or relative path (no leading '/', no '..', '\\', control characters, \
-             empty or space-padded components)"
+            "not a safe name or relative path (no leading '/' or '.', no '\\', control or format \
+             characters, empty or space-padded components; a name is at most 128 bytes)"
         }
         ArgError::BadText => "text may not hold control characters or end with a space",
         ArgError::TooMany => "a list holds too many items",

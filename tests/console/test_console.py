@@ -296,9 +296,12 @@ def test_a_setpoint_on_the_ground_is_refused_and_says_why(daemon, page):
     page.click_plot_at(3.0, 0.0)
     command = page.confirm("set_sp_ned ")
     assert command.split(":")[2] == "0", f"on the ground the setpoint is at ground level: {command}"
-    page.wait(lambda: page.el("last-result").get_attribute("data-ret") == "-1", "the refusal is shown")
-    assert page.text("last-result").endswith("failed or refused (-1) — Vehicle is not flying")
-    assert page.el("last-result").get_attribute("data-tone") == "danger"
+    page.wait(lambda: page.el("last-result").get_attribute("data-ret") == "-2", "the refusal is shown")
+    assert page.text("last-result").endswith(
+        "invalid arguments or unsupported (-2) — Invalid arguments: setpoint at or below the ground "
+        "(z >= 0; up is negative z): use land to descend"
+    )
+    assert page.el("last-result").get_attribute("data-tone") == "warn"
     assert distance(page.marker("vehicle-marker"), page.marker("home-marker")) < 0.05, "nothing moved"
 
 

@@ -1,10 +1,11 @@
 //! lluavd on a hostile network (DESIGN.md, "Security defaults"): the
 //! Origin and Host policy against cross-site WebSocket hijacking and DNS
 //! rebinding, plain HTTP kept away from the protocol, password guessing
-//! throttled per address across connections, `wss://` from the `lluav`
-//! command line, and the public admin value (refused beyond loopback unless
-//! allowed, then warned about).
+//! throttled per address across connections and across all addresses,
+//! `wss://` from the `lluav` command line, and the public admin value
+//! (refused beyond loopback unless allowed, then warned about).
 
+use std::net::{IpAddr, Ipv4Addr};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -204,6 +205,74 @@ async fn the_public_logout_value_does_not_reset_the_count() {
         "the fifth in a row closes the session"
     );
     assert_eq!(login_once(&d.url, PASSWORD).await, THROTTLED);
+}
+
+/// Sends `attempts` on one connection from the loopback address `source`;
+/// returns how many were checked and found wrong.
+async fn guesses_from(d: &Lluavd, source: IpAddr, attempts: &[&str]) -> usize {
+    let mut c = Conn::connect_from(source, d.addr).await.expect("connect");
+    let mut checked = 0;
+    for attempt in attempts {
+        let r = c.request(&format!("login {attempt}")).await;
+        match r["msg"].as_str() {
+            Some("Wrong password!") => checked += 1,
+            Some(THROTTLED) => {}
+            _ => panic!("login {attempt} from {source}: {r}"),
+        }
+    }
+    c.close().await;
+    checked
+}
+
+/// 127.0.0.1 locked out, then four wrong passwords from each of 120 other
+/// loopback addresses, as fast as they go: how many of those were checked,
+/// and how long they took.
+async fn lock_then_swarm(d: &Lluavd) -> (usize, Duration) {
+    let victim = IpAddr::V4(Ipv4Addr::LOCALHOST);
+    assert_eq!(guesses_from(d, victim, &["guess"; 5]).await, 5);
+    let start = Instant::now();
+    let mut checked = 0;
+    for host in 2..122 {
+        let source = IpAddr::V4(Ipv4Addr::new(127, 0, 0, host));
+        checked += guesses_from(d, source, &["guess"; 4]).await;
+    }
+    (checked, start.elapsed())
+}
+
+#[tokio::test]
+async fn many_addresses_guessing_are_held_to_the_budget_and_cannot_unlock_an_address() {
+    let (_dir, d) = daemon(&Options::password(PASSWORD).with_args(&["--login-rate", "10"]));
+    let (checked, took) = lock_then_swarm(&d).await;
+    // A bucket of 10 (5 left after the victim's guesses) refilled at 10
+    // per second: a bound that a slower run only loosens.
+    let bound = 5 + (took.as_secs_f64() * 10.0).ceil() as usize;
+    assert!(
+        (5..=bound).contains(&checked),
+        "{checked} wrong passwords checked in {took:?}"
+    );
+    let victim = IpAddr::V4(Ipv4Addr::LOCALHOST);
+    let mut c = Conn::connect_from(victim, d.addr).await.expect("connect");
+    assert_eq!(c.request(&format!("login {PASSWORD}")).await["msg"], THROTTLED);
+}
+
+#[tokio::test]
+async fn a_full_lockout_table_keeps_a_locked_address_and_checks_nobody_new() {
+    let (_dir, d) =
+        daemon(&Options::password(PASSWORD).with_args(&["--login-addresses", "16", "--login-rate", "1000"]));
+    let (checked, _) = lock_then_swarm(&d).await;
+    // 15 addresses find a free record each and are checked four times;
+    // then the table is full of records that matter, and nobody new is.
+    assert_eq!(checked, 15 * 4);
+    let late = IpAddr::V4(Ipv4Addr::new(127, 0, 0, 200));
+    let mut c = Conn::connect_from(late, d.addr).await.expect("connect");
+    assert_eq!(c.request(&format!("login {PASSWORD}")).await["msg"], THROTTLED);
+    let victim = IpAddr::V4(Ipv4Addr::LOCALHOST);
+    let mut c = Conn::connect_from(victim, d.addr).await.expect("connect");
+    assert_eq!(c.request(&format!("login {PASSWORD}")).await["msg"], THROTTLED);
+    // A recorded address is still checked.
+    let known = IpAddr::V4(Ipv4Addr::new(127, 0, 0, 2));
+    let mut c = Conn::connect_from(known, d.addr).await.expect("connect");
+    assert_eq!(c.request(&format!("login {PASSWORD}")).await["ret"], 0);
 }
 
 #[test]

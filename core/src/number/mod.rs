@@ -4,9 +4,12 @@
 //!
 //! - [`parse_f32`]: decimal text → the nearest `f32` (ties to even), the
 //!   same value as `str::parse::<f32>` for every decimal text, with the
-//!   request grammar's syntax check built in (no `nan`, `inf`, hex).
+//!   request grammar's syntax check built in (no leading `+`, no `nan`,
+//!   `inf`, hex).
 //! - [`format_f32`]: `f32` → the shortest text that reads back as the same
 //!   `f32` (`0.1`, never `0.10000000149011612`), the same text as Ryu.
+//! - [`Number`]: a number as a client sent it, compared with a range on its
+//!   exact decimal value (`90.000001` is above 90, though its `f32` is 90).
 //!
 //! Both are proven against `core`'s parser and Ryu: every f32 bit pattern
 //! in a sweep over all exponents, long runs of consecutive ones, and
@@ -17,10 +20,13 @@ mod exact;
 mod format;
 mod parse;
 mod pow10;
+mod sent;
 
 pub(crate) use format::write as write_f32;
 pub use format::{MAX_LEN, Shortest, format_f32};
 pub use parse::parse_f32;
+pub(crate) use sent::Exact;
+pub use sent::Number;
 
 /// "00" to "99".
 const PAIRS: &[u8; 200] = b"\

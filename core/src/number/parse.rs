@@ -17,9 +17,11 @@
 use super::{exact, mul_high, pow10};
 
 /// The f32 nearest to the decimal number `text` (ties to even), as
-/// `str::parse::<f32>` rounds it; `None` if `text` is not decimal notation:
-/// `[+-]? (digits ('.' digits?)? | '.' digits) ([eE] [+-]? digits)?`.
-/// So `nan`, `inf` and hexadecimal are refused, and a number beyond
+/// `str::parse::<f32>` rounds it; `None` if `text` is not the request
+/// grammar's decimal notation:
+/// `-? (digits ('.' digits?)? | '.' digits) ([eE] [+-]? digits)?`.
+/// So a leading `+`, spaces, `nan`, `inf` and hexadecimal are refused
+/// (where `str::parse` would read `+1`), and a number beyond
 /// `f32::MAX` (after rounding) is an infinity, which the request grammar
 /// then refuses. Any number of digits and any exponent are read exactly.
 pub fn parse_f32(text: &str) -> Option<f32> {
@@ -31,18 +33,14 @@ pub fn parse_f32(text: &str) -> Option<f32> {
     Some(if decimal.negative { -magnitude } else { magnitude })
 }
 
-/// What clients send most, `[+-]? digits ('.' digits?)?` or `'.' digits`
+/// What clients send most, `-? digits ('.' digits?)?` or `'.' digits`
 /// with at most seven digits and no exponent, in one tight pass: the
 /// digits and 10^(fraction digits) are exact f32s, so one division rounds
 /// correctly (path 1 without the general scan). `None` for anything else,
 /// which the general path then reads (or refuses).
 #[inline]
 fn short(text: &[u8]) -> Option<f32> {
-    let (negative, body) = match text.split_first() {
-        Some((b'-', rest)) => (true, rest),
-        Some((b'+', rest)) => (false, rest),
-        _ => (false, text),
-    };
+    let (negative, body) = sign(text);
     let mut w: u32 = 0;
     let mut digits = 0usize;
     let mut point = None;
@@ -65,13 +63,22 @@ fn short(text: &[u8]) -> Option<f32> {
     Some(if negative { -v } else { v })
 }
 
+/// The mantissa's sign: an optional `-` (a leading `+` is not the
+/// grammar's, and is left in the body to be refused there).
+fn sign(text: &[u8]) -> (bool, &[u8]) {
+    match text.split_first() {
+        Some((b'-', rest)) => (true, rest),
+        _ => (false, text),
+    }
+}
+
 /// A decimal number as read from the text.
 pub(super) struct Decimal<'a> {
-    negative: bool,
+    pub(super) negative: bool,
     /// The digits before the exponent, with the decimal point if any.
     pub(super) mantissa: &'a [u8],
-    /// The first 19 significant digits.
-    w: u64,
+    /// The first 19 significant digits (0 exactly when the number is 0).
+    pub(super) w: u64,
     /// How many significant digits there are (from the first nonzero on).
     pub(super) significant: i64,
     /// The value is N · 10^exp10, N the integer of all the mantissa digits.
@@ -84,12 +91,8 @@ pub(super) struct Decimal<'a> {
 const W_DIGITS: i64 = 19;
 
 impl<'a> Decimal<'a> {
-    fn scan(text: &'a [u8]) -> Option<Self> {
-        let (negative, body) = match text.split_first() {
-            Some((b'-', rest)) => (true, rest),
-            Some((b'+', rest)) => (false, rest),
-            _ => (false, text),
-        };
+    pub(super) fn scan(text: &'a [u8]) -> Option<Self> {
+        let (negative, body) = sign(text);
         let mut d = Decimal {
             negative,
             mantissa: body,

@@ -4,60 +4,40 @@
 //!
 //! nom runs on the bytes (every byte the grammar looks for is ASCII, so a
 //! field cut there is whole characters): no UTF-8 decoding per character.
-//! The digits nom recognises are turned into values by [`crate::number`].
+//! Numbers are read, and their syntax checked, by [`crate::number`].
 
 use heapless::Vec;
 use nom::bytes::complete::take_till;
-use nom::character::complete::{char, digit0, digit1, satisfy};
-use nom::combinator::{all_consuming, opt, rest};
-use nom::error::ErrorKind;
-use nom::sequence::{preceded, separated_pair};
-use nom::{IResult, Offset, Parser};
+use nom::character::complete::{char, digit1};
+use nom::combinator::{all_consuming, rest};
+use nom::sequence::separated_pair;
+use nom::{Offset, Parser};
 
 use crate::error::ArgError;
-use crate::number::parse_f32;
+use crate::number::{Number, parse_f32};
 
 type NomError<'a> = nom::error::Error<&'a [u8]>;
 
-/// `[+-]? (digits ('.' digits?)? | '.' digits) ([eE] [+-]? digits)?`:
-/// decimal notation only, so `nan`, `inf` and hex never get through. nom's
-/// parsers in sequence rather than nested `alt`s, which would try the
-/// digits twice and build an error for every branch not taken.
-fn decimal(i: &[u8]) -> IResult<&[u8], &[u8]> {
-    let sign = || opt(satisfy(|c| c == '+' || c == '-'));
-    let start = i;
-    let (i, _) = sign().parse(i)?;
-    let (i, int) = digit0(i)?;
-    let (i, frac) = opt(preceded(char('.'), digit0)).parse(i)?;
-    if int.is_empty() && frac.is_none_or(<[u8]>::is_empty) {
-        return Err(nom::Err::Error(NomError::new(i, ErrorKind::Digit)));
-    }
-    let (i, _) = opt((satisfy(|c| c == 'e' || c == 'E'), sign(), digit1)).parse(i)?;
-    Ok((i, start.get(..start.offset(i)).unwrap_or_default()))
-}
-
-/// A finite decimal number that fits an `f32`, correctly rounded.
-pub(crate) fn float(token: &str) -> Result<f32, ArgError> {
+/// A finite decimal number that fits an `f32`, correctly rounded, with its
+/// text: DESIGN.md's one number grammar, `-? (digits ('.' digits?)? | '.'
+/// digits) ([eE] [+-]? digits)?` ([`crate::number::parse_f32`] checks it
+/// as it reads), so a leading `+`, spaces, `nan`, `inf` and hex never get
+/// through.
+pub(crate) fn number(token: &str) -> Result<Number<'_>, ArgError> {
     if token.is_empty() {
         return Err(ArgError::Missing);
     }
-    if all_consuming(decimal).parse(token.as_bytes()).is_err() {
-        let bytes = token.as_bytes();
-        let signs = bytes.iter().take_while(|&&b| b == b'+' || b == b'-').count();
-        let word = bytes.get(signs..).unwrap_or_default();
-        let non_finite = [&b"nan"[..], b"inf", b"infinity"]
-            .iter()
-            .any(|w| word.eq_ignore_ascii_case(w));
-        return Err(if non_finite {
-            ArgError::NotFinite
-        } else {
-            ArgError::NotANumber
-        });
-    }
-    // The syntax is checked above, so only overflow to infinity remains.
-    parse_f32(token)
-        .ok_or(ArgError::NotANumber)
-        .and_then(super::rules::finite)
+    // Not in the grammar (`nan` and `inf` are words, not numbers), or
+    // beyond an f32.
+    Number::parse(token).ok_or(match parse_f32(token) {
+        Some(_) => ArgError::NotFinite,
+        None => ArgError::NotANumber,
+    })
+}
+
+/// [`number`]'s `f32`.
+pub(crate) fn float(token: &str) -> Result<f32, ArgError> {
+    number(token).map(|n| n.value())
 }
 
 /// An unsigned decimal integer that fits a `u32`.
@@ -183,35 +163,4 @@ pub(crate) fn split_first(input: &str, sep: char) -> Result<(&str, &str), ArgErr
         input.get(at..at + part.len())
     };
     text(head).zip(text(tail)).ok_or(ArgError::Malformed)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every string of up to six bytes over the characters a decimal is
-    /// made of (and two that it is not): nom's grammar accepts exactly
-    /// what the number module's own scanner accepts, with the same value.
-    #[test]
-    fn the_nom_grammar_and_the_number_scanner_accept_the_same_decimals() {
-        let alphabet = *b"0159.eE+-x";
-        let mut text = [0u8; 6];
-        for len in 1..=6u32 {
-            for n in 0..alphabet.len().pow(len) {
-                let mut k = n;
-                for slot in text.iter_mut().take(len as usize) {
-                    *slot = alphabet.get(k % alphabet.len()).copied().unwrap_or_default();
-                    k /= alphabet.len();
-                }
-                let bytes = text.get(..len as usize).unwrap_or_default();
-                let token = core::str::from_utf8(bytes).unwrap_or_default();
-                let nom = all_consuming(decimal).parse(bytes).is_ok();
-                let ours = parse_f32(token);
-                assert_eq!(nom, ours.is_some(), "{token:?}");
-                if let (Ok(v), Some(w)) = (float(token), ours) {
-                    assert_eq!(v.to_bits(), w.to_bits(), "{token:?}");
-                }
-            }
-        }
-    }
 }

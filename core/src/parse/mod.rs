@@ -75,9 +75,9 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
         Grammar::Flag => Args::Flag(fields::flag(a)?),
         Grammar::OptCount => Args::OptCount(Some(fields::uint(a)?)),
         Grammar::Pwm => Args::Pwm(fields::pwm(a)?),
-        Grammar::Amount => Args::Amount(rules::non_negative(fields::float(a)?)?),
-        Grammar::OptAmount => Args::OptAmount(Some(rules::non_negative(fields::float(a)?)?)),
-        Grammar::Angle => Args::Angle(rules::angle(fields::float(a)?)?),
+        Grammar::Amount => Args::Amount(rules::non_negative(fields::number(a)?)?),
+        Grammar::OptAmount => Args::OptAmount(Some(rules::non_negative(fields::number(a)?)?)),
+        Grammar::Angle => Args::Angle(rules::angle(fields::number(a)?)?),
         Grammar::Name => Args::Name(rules::name(a)?),
         Grammar::OptName => Args::OptName(Some(rules::name(a)?)),
         Grammar::Path => Args::Path(rules::path(a)?),
@@ -87,7 +87,7 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
         Grammar::ParamName => Args::ParamName(rules::param_name(a)?),
         Grammar::Setpoint => {
             let [x, y, z, yaw] = fields::numbers(a, ':')?;
-            Args::Setpoint(Pose { x, y, z, yaw })
+            Args::Setpoint(rules::setpoint(Pose { x, y, z, yaw })?)
         }
         Grammar::Point => {
             let [x, y, z] = fields::numbers(a, ':')?;

@@ -1,10 +1,15 @@
 //! Value rules shared by the parser and [`crate::Command::new`], so that a
 //! hand-built command and a parsed one obey exactly the same limits.
 
-use crate::error::ArgError;
+use core::cmp::Ordering;
 
-/// Longest single path component, as POSIX `NAME_MAX`.
-pub const MAX_NAME_LEN: usize = 255;
+use crate::command::Pose;
+use crate::error::ArgError;
+use crate::number::{Exact, Number};
+
+/// Longest name that becomes a file, in bytes (so that a temporary name
+/// beside it still fits a filesystem's 255).
+pub const MAX_NAME_LEN: usize = 128;
 /// Longest relative path.
 pub const MAX_PATH_LEN: usize = 1024;
 /// Longest parameter name and task id.
@@ -20,19 +25,39 @@ pub(crate) fn finite(v: f32) -> Result<f32, ArgError> {
     }
 }
 
-pub(crate) fn non_negative(v: f32) -> Result<f32, ArgError> {
-    if finite(v)? >= 0.0 {
-        Ok(v)
-    } else {
+/// A number ≥ 0 as sent (`-1e-50` is below 0, though its `f32` is -0).
+pub(crate) fn non_negative(n: Number<'_>) -> Result<Number<'_>, ArgError> {
+    finite(n.value())?;
+    if n.cmp_exact(&Exact::ZERO, 0.0) == Some(Ordering::Less) {
         Err(ArgError::OutOfRange)
+    } else {
+        Ok(n)
     }
 }
 
-pub(crate) fn angle(v: f32) -> Result<f32, ArgError> {
-    if (-90.0..=90.0).contains(&finite(v)?) {
-        Ok(v)
-    } else {
+/// An angle in -90..=90 as sent (`90.000001` is out, though its `f32` is
+/// 90).
+pub(crate) fn angle(n: Number<'_>) -> Result<f32, ArgError> {
+    let v = finite(n.value())?;
+    if n.cmp_exact(&Exact::MINUS_NINETY, -90.0) == Some(Ordering::Less)
+        || n.cmp_exact(&Exact::NINETY, 90.0) == Some(Ordering::Greater)
+    {
         Err(ArgError::OutOfRange)
+    } else {
+        Ok(v)
+    }
+}
+
+/// A setpoint above the ground: `z < 0` (NED from home) as the vehicle
+/// would fly it, so `-0` and `-1e-50` (the `f32` -0) are at the ground.
+pub(crate) fn setpoint(p: Pose) -> Result<Pose, ArgError> {
+    [p.x, p.y, p.z, p.yaw]
+        .into_iter()
+        .try_for_each(|v| finite(v).map(|_| ()))?;
+    if p.z < 0.0 {
+        Ok(p)
+    } else {
+        Err(ArgError::AtOrBelowGround)
     }
 }
 
@@ -40,16 +65,56 @@ fn is_control(c: char) -> bool {
     c.is_control()
 }
 
-/// A single path component: it cannot name a parent, a separator, or carry
-/// bytes a filesystem or a log would treat specially.
+/// `first..=last` as one word: the first code point (every Cf one is
+/// below 2^24) and, in the top byte, how many follow it.
+const fn span(first: u32, last: u32) -> u32 {
+    (last - first) << 24 | first
+}
+
+/// The Unicode format characters (general category Cf, Unicode 16):
+/// invisible, and some reorder what follows (U+202E shows
+/// `evil\u{202E}gpj.exe` as `evilexe.jpg`).
+const FORMAT: [u32; 21] = [
+    span(0xAD, 0xAD),
+    span(0x600, 0x605),
+    span(0x61C, 0x61C),
+    span(0x6DD, 0x6DD),
+    span(0x70F, 0x70F),
+    span(0x890, 0x891),
+    span(0x8E2, 0x8E2),
+    span(0x180E, 0x180E),
+    span(0x200B, 0x200F),
+    span(0x202A, 0x202E),
+    span(0x2060, 0x2064),
+    span(0x2066, 0x206F),
+    span(0xFEFF, 0xFEFF),
+    span(0xFFF9, 0xFFFB),
+    span(0x110BD, 0x110BD),
+    span(0x110CD, 0x110CD),
+    span(0x13430, 0x1343F),
+    span(0x1BCA0, 0x1BCA3),
+    span(0x1D173, 0x1D17A),
+    span(0xE0001, 0xE0001),
+    span(0xE0020, 0xE007F),
+];
+
+/// Whether `c` is a Unicode format character (Cf).
+fn is_format(c: char) -> bool {
+    let c = u32::from(c);
+    FORMAT.iter().any(|&e| c.wrapping_sub(e & 0xFF_FFFF) <= e >> 24)
+}
+
+/// A name that becomes a file: a single path component (no `/`, `\`),
+/// not hidden (no leading `.`, so neither `.` nor `..`), no control or
+/// format characters (Unicode Cc, Cf), no leading or trailing space, at
+/// most [`MAX_NAME_LEN`] bytes.
 pub(crate) fn name(s: &str) -> Result<&str, ArgError> {
     let bad = s.is_empty()
         || s.len() > MAX_NAME_LEN
-        || s == "."
-        || s == ".."
-        || s.starts_with(' ')
+        || matches!(s.as_bytes().first(), Some(b'.' | b' '))
         || s.ends_with(' ')
-        || s.chars().any(|c| c == '/' || c == '\\' || is_control(c));
+        || s.chars()
+            .any(|c| c == '/' || c == '\\' || is_control(c) || is_format(c));
     if bad { Err(ArgError::UnsafePath) } else { Ok(s) }
 }
 

@@ -46,7 +46,7 @@ impl Bags {
             Args::Flag(false) => self.stop(out),
             Args::OptAmount(min_gb) => {
                 let keep = self.recording.as_ref().map(|b| b.path.clone());
-                images::clear(files, Area::Bags, min_gb, keep.as_deref(), out)
+                images::clear(files, Area::Bags, min_gb.map(|n| n.value()), keep.as_deref(), out)
             }
             _ => Err(Error::NotOwned(cmd.id().name())),
         }

@@ -18,7 +18,7 @@ pub(super) fn run(cmd: &Command<'_>, files: &Files, now_ms: i64, out: &mut Field
         Args::Name(name) => remove(files, name, out),
         &Args::OptAmount(min_gb) => {
             let keep = files.named(Area::Images, &capture_dir(now_ms))?;
-            clear(files, Area::Images, min_gb, Some(&keep), out)
+            clear(files, Area::Images, min_gb.map(|n| n.value()), Some(&keep), out)
         }
         _ => Err(Error::NotOwned(cmd.id().name())),
     }

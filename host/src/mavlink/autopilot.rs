@@ -300,15 +300,16 @@ impl Encoding {
     }
 }
 
-/// A client's `set_param` value text as a value of type `ty`.
+/// A client's `set_param` value text as a value of type `ty`, in the
+/// request's number grammar (no `+`, no spaces, no `inf`).
 pub fn parse_value(name: &str, ty: MavParamType, text: &str) -> Result<ParamValue, String> {
-    let text = text.trim();
+    let number = lluav_core::Number::parse(text);
     match int_range(ty)? {
-        None => match text.parse::<f32>() {
-            Ok(v) if v.is_finite() => Ok(ParamValue::Float(v)),
-            _ => Err(format!("{name} expects a number (REAL32), got '{text}'")),
+        None => match number {
+            Some(v) => Ok(ParamValue::Float(v.value())),
+            None => Err(format!("{name} expects a number (REAL32), got '{text}'")),
         },
-        Some((min, max)) => match text.parse::<i64>() {
+        Some((min, max)) => match number.and_then(|_| text.parse::<i64>().ok()).ok_or(()) {
             Ok(v) if (min..=max).contains(&v) => Ok(ParamValue::Int(v)),
             Ok(v) => Err(format!(
                 "{name} {v} out of range {min}..{max} ({})",
@@ -375,9 +376,22 @@ mod tests {
     #[test]
     fn set_param_values_are_checked_against_the_type() {
         assert_eq!(
-            parse_value("A", T::MAV_PARAM_TYPE_INT8, " 127"),
+            parse_value("A", T::MAV_PARAM_TYPE_INT8, "127"),
             Ok(ParamValue::Int(127))
         );
+        // The request's one number grammar: no `+`, no spaces.
+        for text in [" 127", "+127", "12 7"] {
+            assert!(
+                parse_value("A", T::MAV_PARAM_TYPE_INT8, text).is_err(),
+                "{text:?}"
+            );
+        }
+        for text in ["+1.5", " 1.5", "1.5 "] {
+            assert!(
+                parse_value("A", T::MAV_PARAM_TYPE_REAL32, text).is_err(),
+                "{text:?}"
+            );
+        }
         assert!(
             parse_value("A", T::MAV_PARAM_TYPE_INT8, "128")
                 .unwrap_err()

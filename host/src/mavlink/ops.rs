@@ -250,6 +250,6 @@ pub async fn set_param(link: Arc<Link>, name: String, text: String) -> Result<An
 fn show(v: ParamValue) -> String {
     match v {
         ParamValue::Int(i) => i.to_string(),
-        ParamValue::Float(f) => f.to_string(),
+        ParamValue::Float(f) => lluav_core::Number::from(f).to_string(),
     }
 }

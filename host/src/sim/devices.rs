@@ -3,7 +3,7 @@
 //! keeps the state its commands set and reports it under one response
 //! field; [`Devices::run`] hands each command to its device.
 
-use lluav_core::{Args, Command, CommandId as C, Fields};
+use lluav_core::{Args, Command, CommandId as C, Fields, Number};
 
 use super::error::{SimError, SimResult};
 
@@ -109,7 +109,7 @@ impl Devices {
         Ok(())
     }
 
-    fn set_apron(&mut self, v: f32, max: f32, what: &str, out: &mut Fields<'_>) -> SimResult {
+    fn set_apron(&mut self, v: Number<'_>, max: f32, what: &str, out: &mut Fields<'_>) -> SimResult {
         let v = checked(what, v, max)?;
         if what == "voltage" {
             self.apron.voltage = v;
@@ -188,12 +188,14 @@ impl Apron {
     }
 }
 
-/// Refuses `v` above `max` (-2: a value the device cannot take).
-fn checked(what: &str, v: f32, max: f32) -> SimResult<f32> {
-    if v > max {
+/// Refuses `v` above `max` as sent (-2: a value the device cannot take);
+/// the `f32` to act on.
+fn checked(what: &str, v: Number<'_>, max: f32) -> SimResult<f32> {
+    if v.above(max) {
+        let max = Number::from(max);
         return Err(SimError::Refused(format!("{what} {v} above {max}")));
     }
-    Ok(v)
+    Ok(v.value())
 }
 
 /// The battery management system.
@@ -274,8 +276,9 @@ struct Utg {
 
 impl Utg {
     /// Sets the sonic speed (above 0, up to [`UTG_MAX_SPEED`]).
-    fn set_speed(&mut self, v: f32) -> SimResult {
-        if v <= 0.0 {
+    fn set_speed(&mut self, v: Number<'_>) -> SimResult {
+        // On the f32 the gauge would use: 1e-50 is above 0, but not its f32.
+        if v.value() <= 0.0 {
             return Err(SimError::Refused("UTG sonic speed must be above 0".into()));
         }
         self.speed = checked("UTG sonic speed", v, UTG_MAX_SPEED)?;

@@ -11,7 +11,8 @@
 use std::io;
 use std::path::{Path, PathBuf};
 
-use lluav_core::{Args, Command, CommandId, Fields};
+use lluav_core::number::format_f32;
+use lluav_core::{Args, Command, CommandId, Fields, Number};
 
 use super::error::{SimError, SimResult};
 use crate::files::atomic_write;
@@ -24,8 +25,9 @@ pub(crate) const PARAMS_FILE: &str = "params.json";
 pub(crate) enum Value {
     /// An integer.
     Int(i64),
-    /// A real number.
-    Float(f64),
+    /// A real number: an `f32`, as the protocol carries it (MAVLink's
+    /// parameters are too).
+    Float(f32),
     /// A boolean (`0`/`1`/`true`/`false` on the wire).
     Bool(bool),
 }
@@ -40,27 +42,29 @@ impl Value {
         }
     }
 
+    /// The value as the simulator computes with it: a float is the `f64`
+    /// of the decimal it is written as (0.7, not 0.699999988079071).
     fn as_f64(self) -> f64 {
         match self {
             Value::Int(i) => i as f64,
-            Value::Float(f) => f,
+            Value::Float(f) => format_f32(f).as_str().parse().unwrap_or(f64::from(f)),
             Value::Bool(b) => f64::from(u8::from(b)),
         }
     }
 
-    /// Parses `text` as a value of the same type as `self`.
-    fn parse_like(self, text: &str) -> Option<Value> {
-        let text = text.trim();
+    /// Parses `text` as a value of the same type as `self`, in the
+    /// request grammar (no `+`, no spaces); for a number, the value as
+    /// sent too, for the range check.
+    fn parse_like(self, text: &str) -> Option<(Value, Option<Number<'_>>)> {
         match self {
-            Value::Int(_) => text.parse().ok().map(Value::Int),
-            Value::Float(_) => text
-                .parse::<f64>()
-                .ok()
-                .filter(|f| f.is_finite())
-                .map(Value::Float),
+            Value::Int(_) => {
+                let n = Number::parse(text)?;
+                text.parse().ok().map(|i| (Value::Int(i), Some(n)))
+            }
+            Value::Float(_) => Number::parse(text).map(|n| (Value::Float(n.value()), Some(n))),
             Value::Bool(_) => match text {
-                "1" | "true" => Some(Value::Bool(true)),
-                "0" | "false" => Some(Value::Bool(false)),
+                "1" | "true" => Some((Value::Bool(true), None)),
+                "0" | "false" => Some((Value::Bool(false), None)),
                 _ => None,
             },
         }
@@ -69,7 +73,11 @@ impl Value {
     fn json_like(self, v: &serde_json::Value) -> Option<Value> {
         match self {
             Value::Int(_) => v.as_i64().map(Value::Int),
-            Value::Float(_) => v.as_f64().map(Value::Float),
+            Value::Float(_) => v
+                .as_f64()
+                .map(|f| f as f32)
+                .filter(|f| f.is_finite())
+                .map(Value::Float),
             Value::Bool(_) => v.as_bool().map(Value::Bool),
         }
     }
@@ -77,7 +85,7 @@ impl Value {
     fn to_json(self) -> serde_json::Value {
         match self {
             Value::Int(i) => i.into(),
-            Value::Float(f) => f.into(),
+            Value::Float(_) => self.as_f64().into(),
             Value::Bool(b) => b.into(),
         }
     }
@@ -86,7 +94,7 @@ impl Value {
     pub(crate) fn write(self, out: &mut Fields<'_>, key: &str) {
         match self {
             Value::Int(i) => out.i64(key, i),
-            Value::Float(f) => out.f64(key, f),
+            Value::Float(f) => out.f32(key, f),
             Value::Bool(b) => out.bool(key, b),
         };
     }
@@ -194,15 +202,15 @@ impl Params {
     /// unknown name, a value of the wrong type or out of range).
     fn set(&mut self, name: &str, text: &str) -> SimResult<Value> {
         let (def, _) = self.get(name)?;
-        let value = def.default.parse_like(text).ok_or_else(|| SimError::ParamType {
+        let (value, sent) = def.default.parse_like(text).ok_or_else(|| SimError::ParamType {
             name: name.into(),
             expected: def.default.type_name(),
             value: text.into(),
         })?;
-        if !in_range(def, value) {
+        if let Some(n) = sent.filter(|n| !sent_in_range(def, n)) {
             return Err(SimError::ParamRange {
                 name: name.into(),
-                value: text.trim().into(),
+                value: n.to_string(),
                 min: def.min,
                 max: def.max,
             });
@@ -294,6 +302,16 @@ fn in_range(def: &Def, value: Value) -> bool {
     matches!(value, Value::Bool(_)) || (def.min..=def.max).contains(&value.as_f64())
 }
 
+/// Whether a number as sent is in `def`'s range, exactly (`120.0000001`
+/// is above 120 although its `f32` is 120): the bounds as the decimals they
+/// are written as.
+fn sent_in_range(def: &Def, n: &Number<'_>) -> bool {
+    use std::cmp::Ordering::{Greater, Less};
+    let below = n.cmp_decimal(&def.min.to_string()) == Some(Less);
+    let above = n.cmp_decimal(&def.max.to_string()) == Some(Greater);
+    !(below || above)
+}
+
 fn read_file(file: &Path) -> io::Result<Vec<Value>> {
     let mut values = defaults();
     let text = match std::fs::read(file) {
@@ -353,6 +371,41 @@ mod tests {
             "Invalid arguments: unknown parameter nope"
         );
         assert_eq!(p.f64(Key::TakeoffAlt), 3.0);
+    }
+
+    #[test]
+    fn values_follow_the_request_number_grammar_and_ranges_are_checked_as_sent() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut p = Params::load(dir.path().join("params.json")).unwrap();
+        for bad in [" 3", "+3", "3 ", "0x3", "3,5"] {
+            assert!(
+                matches!(p.set("takeoff_alt", bad), Err(SimError::ParamType { .. })),
+                "{bad:?}"
+            );
+        }
+        assert!(matches!(
+            p.set("autosleep_after", "+60"),
+            Err(SimError::ParamType { .. })
+        ));
+        assert!(matches!(p.set("rtl_land", " 1"), Err(SimError::ParamType { .. })));
+        let e = p.set("takeoff_alt", "120.0000001").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "Invalid arguments: takeoff_alt 120.0000001 out of range 0.5..120"
+        );
+        assert!(p.set("takeoff_alt", "120.0000000").is_ok());
+        assert!(matches!(
+            p.set("accept_radius", "0.0499999999"),
+            Err(SimError::ParamRange { .. })
+        ));
+        assert!(
+            p.set("accept_radius", "0.05").is_ok(),
+            "the bound is the decimal 0.05"
+        );
+        // An f32 parameter keeps (and answers) an f32.
+        let v = p.set("takeoff_alt", "2.123456789012345678901").unwrap();
+        assert_eq!(v, Value::Float(2.123_456_7));
+        assert_eq!(p.f64(Key::TakeoffAlt), 2.123_456_7);
     }
 
     #[test]

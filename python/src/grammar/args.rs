@@ -157,8 +157,8 @@ pub fn build<'a>(grammar: Grammar, params: &'a [Param], values: &'a [Value]) -> 
         Grammar::Flag => Args::Flag(v.flag(0)?),
         Grammar::OptCount => Args::OptCount(v.opt_u32(0)?),
         Grammar::Pwm => Args::Pwm(v.pwm(0)?),
-        Grammar::Amount => Args::Amount(v.float(0)?),
-        Grammar::OptAmount => Args::OptAmount(v.opt_float(0)?),
+        Grammar::Amount => Args::Amount(v.float(0)?.into()),
+        Grammar::OptAmount => Args::OptAmount(v.opt_float(0)?.map(Into::into)),
         Grammar::Angle => Args::Angle(v.float(0)?),
         Grammar::Name => Args::Name(v.str(0)?),
         Grammar::OptName => Args::OptName(v.opt_str(0)?),
@@ -220,8 +220,9 @@ pub fn values<'py>(py: Python<'py>, args: &Args<'_>) -> PyResult<Vec<Bound<'py, 
         Args::Flag(on) => vec![PyBool::new(py, *on).to_owned().into_any()],
         Args::OptCount(n) => vec![n.map_or(Ok(none()), |n| int(n.into()))?],
         Args::Pwm(n) => vec![int((*n).into())?],
-        Args::Amount(v) | Args::Angle(v) => vec![float(*v)],
-        Args::OptAmount(v) => vec![v.map_or_else(none, float)],
+        Args::Amount(v) => vec![float(v.value())],
+        Args::Angle(v) => vec![float(*v)],
+        Args::OptAmount(v) => vec![v.map_or_else(none, |v| float(v.value()))],
         Args::Name(v)
         | Args::Path(v)
         | Args::Text(v)
