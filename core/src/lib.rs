@@ -13,8 +13,9 @@
 //! - [`response`]: JSON responses in caller-provided fixed buffers;
 //! - [`Backend`] and [`Clock`]: what an adapter supplies;
 //! - [`throttle`]: password guessing limited per client and across all;
-//! - [`websocket`]: the WebSocket frame codec both adapters share (headers,
-//!   unmasking, UTF-8 checked as a text message arrives);
+//! - [`websocket`]: WebSocket as both adapters enforce it: the upgrade
+//!   request and the Origin/Host policy, frames (headers, unmasking, UTF-8
+//!   checked as a text message arrives), fragmentation and closing;
 //! - [`Server::handle`]: the one entry point an adapter calls per message.
 //!
 //! ```

@@ -1,9 +1,12 @@
 //! The WebSocket frame codec both adapters share: client headers checked
 //! against RFC 6455, unmasking in pieces, server headers in the minimal
-//! length form, and UTF-8 checked as a text message arrives.
+//! length form, UTF-8 checked as a text message arrives, the rules of a
+//! message across its frames, and the answer to a peer's close.
 
-use lluav_core::CloseCode;
-use lluav_core::websocket::{Opcode, Utf8, Verdict, parse_header, unmask, write_header};
+use lluav_core::websocket::{
+    Fragments, Header, Interrupt, Opcode, Utf8, Verdict, close_reply, parse_header, unmask, write_header,
+};
+use lluav_core::{CloseCode, Message};
 
 #[test]
 fn a_header_cut_short_waits_for_more_bytes() {
@@ -55,6 +58,32 @@ fn frames_the_rfc_forbids_fail_with_1002() {
     ];
     for frame in bad {
         assert_eq!(parse_header(frame), Err(CloseCode::ProtocolError), "{frame:?}");
+    }
+}
+
+#[test]
+fn lengths_not_in_their_minimal_form_fail_with_1002() {
+    // RFC 6455, section 5.2: "the minimal number of bytes MUST be used".
+    let bad: [&[u8]; 4] = [
+        &[0x81, 0xfe, 0, 3, 1, 2, 3, 4],                         // 3 bytes in 16 bits
+        &[0x81, 0xfe, 0, 125, 1, 2, 3, 4],                       // 125 in 16 bits
+        &[0x81, 0xff, 0, 0, 0, 0, 0, 0, 0, 200, 1, 2, 3, 4],     // 200 in 64 bits
+        &[0x81, 0xff, 0, 0, 0, 0, 0, 0, 0xff, 0xff, 1, 2, 3, 4], // 65,535 in 64 bits
+    ];
+    for frame in bad {
+        assert_eq!(parse_header(frame), Err(CloseCode::ProtocolError), "{frame:?}");
+        // Known as soon as the length is in, before the mask arrives.
+        assert_eq!(
+            parse_header(&frame[..frame.len() - 4]),
+            Err(CloseCode::ProtocolError)
+        );
+    }
+    let least: [(&[u8], u64); 2] = [
+        (&[0x81, 0xfe, 0, 126, 1, 2, 3, 4], 126),
+        (&[0x81, 0xff, 0, 0, 0, 0, 0, 1, 0, 0, 1, 2, 3, 4], 0x1_0000),
+    ];
+    for (frame, len) in least {
+        assert_eq!(parse_header(frame).ok().flatten().map(|h| h.len), Some(len));
     }
 }
 
@@ -154,4 +183,96 @@ fn a_code_point_above_the_unicode_range_fails_at_its_second_byte() {
 fn surrogates_and_overlong_forms_fail() {
     assert_eq!(feed(&[b"\xed\xa0\x80"]).0, Verdict::Invalid);
     assert_eq!(feed(&[b"\xc0\xaf"]).0, Verdict::Invalid);
+}
+
+/// The header of a masked client frame with a `len`-byte payload.
+fn header(first: u8, len: u64) -> Header {
+    let mut wire = vec![first];
+    match len {
+        0..=125 => wire.push(0x80 | len as u8),
+        126..=0xffff => {
+            wire.push(0x80 | 126);
+            wire.extend_from_slice(&(len as u16).to_be_bytes());
+        }
+        _ => {
+            wire.push(0x80 | 127);
+            wire.extend_from_slice(&len.to_be_bytes());
+        }
+    }
+    wire.extend_from_slice(&[0; 4]);
+    parse_header(&wire).ok().flatten().expect("a valid header")
+}
+
+#[test]
+fn a_fragmented_message_is_one_message_and_control_frames_may_interleave() {
+    let mut fragments = Fragments::new();
+    assert_eq!(fragments.begin(&header(0x01, 4), 100), Ok(()));
+    fragments.extend(b"set_", false);
+    assert_eq!(fragments.begin(&header(0x89, 5), 100), Ok(()));
+    assert_eq!(fragments.begin(&header(0x80, 3), 100), Ok(()));
+    fragments.extend(b"set_sp_", true);
+    assert_eq!(fragments.received(), 7);
+    assert_eq!(fragments.message(b"set_sp_"), Message::Text(b"set_sp_"));
+    fragments.reset();
+    assert!(!fragments.in_progress());
+    assert_eq!(fragments.begin(&header(0x82, 2), 100), Ok(()));
+    assert_eq!(fragments.message(&[1, 2]), Message::Binary(&[1, 2]));
+}
+
+#[test]
+fn continuations_out_of_place_fail_with_1002() {
+    let fail = Err(Interrupt::Fail(CloseCode::ProtocolError));
+    assert_eq!(Fragments::new().begin(&header(0x80, 1), 100), fail);
+    let mut fragments = Fragments::new();
+    assert_eq!(fragments.begin(&header(0x01, 1), 100), Ok(()));
+    assert_eq!(fragments.begin(&header(0x81, 1), 100), fail);
+    assert_eq!(fragments.begin(&header(0x02, 1), 100), fail);
+}
+
+#[test]
+fn a_message_over_the_limit_is_refused_at_the_header_of_its_frame() {
+    assert_eq!(
+        Fragments::new().begin(&header(0x81, 11), 10),
+        Err(Interrupt::Oversized)
+    );
+    let mut fragments = Fragments::new();
+    assert_eq!(fragments.begin(&header(0x01, 6), 10), Ok(()));
+    fragments.extend(b"aaaaaa", false);
+    assert_eq!(fragments.begin(&header(0x80, 4), 10), Ok(()));
+    assert_eq!(fragments.begin(&header(0x80, 5), 10), Err(Interrupt::Oversized));
+    assert_eq!(
+        Fragments::new().begin(&header(0x81, u64::MAX >> 1), usize::MAX),
+        Ok(())
+    );
+}
+
+#[test]
+fn text_fails_at_its_first_bad_byte_and_a_complete_message_is_left_whole() {
+    let mut fragments = Fragments::new();
+    assert_eq!(fragments.begin(&header(0x01, 3), 100), Ok(()));
+    assert_eq!(fragments.extend(b"ok", false), Verdict::Open);
+    assert_eq!(fragments.extend(b"ok\xff", false), Verdict::Invalid);
+    // A complete message is Message::text's to check, once.
+    let mut whole = Fragments::new();
+    assert_eq!(whole.begin(&header(0x81, 1), 100), Ok(()));
+    assert_eq!(whole.extend(b"\xff", true), Verdict::Open);
+    assert_eq!(whole.message(b"\xff").text(), Err(CloseCode::InvalidPayload));
+    // Binary is not text.
+    let mut binary = Fragments::new();
+    assert_eq!(binary.begin(&header(0x02, 1), 100), Ok(()));
+    assert_eq!(binary.extend(b"\xff", false), Verdict::Open);
+}
+
+#[test]
+fn a_peers_close_is_answered_with_its_code_or_the_reason_it_cannot_be() {
+    assert_eq!(close_reply(&[]), 1000);
+    assert_eq!(close_reply(&[0x03]), 1002);
+    for code in [1000u16, 1001, 1003, 1007, 1011, 1014, 3000, 4999] {
+        assert_eq!(close_reply(&code.to_be_bytes()), code);
+    }
+    for code in [0u16, 999, 1004, 1005, 1006, 1015, 1016, 2999, 5000] {
+        assert_eq!(close_reply(&code.to_be_bytes()), 1002, "{code}");
+    }
+    assert_eq!(close_reply(b"\x03\xe8bye"), 1000);
+    assert_eq!(close_reply(b"\x03\xe8\xff"), 1007);
 }
