@@ -148,6 +148,15 @@ impl Failure {
         }
     }
 
+    /// ret -2 with the command's usage line, as a parse error answers:
+    /// `Invalid arguments, usage: ...`. Written without `core::fmt`, which
+    /// an MCU would otherwise link for this one message.
+    pub(crate) fn usage(id: CommandId) -> Self {
+        let mut f = Failure::new(Ret::InvalidArgs, messages::INVALID_ARGS_PREFIX);
+        push_truncated(&mut f.msg, id.spec().usage);
+        f
+    }
+
     /// A failure whose message [`crate::Fields::fail`] wrote into the
     /// response buffer.
     pub(crate) fn written(ret: Ret) -> Self {

@@ -12,7 +12,7 @@
 
 use crate::backend::{Backend, Clock, Context, Step, Ticket};
 use crate::command::{Args, Command};
-use crate::error::{ArgError, Failure, ParseError, Refusal, Ret, messages};
+use crate::error::{Failure, ParseError, Refusal, Ret, messages};
 use crate::gate;
 use crate::parse::{self, Split};
 use crate::response::{self, Fields};
@@ -340,7 +340,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
     }
 
     fn passwd(&mut self, session: &mut Session, new: &str) -> Result<(), Failure> {
-        let bad = |_| invalid_args(CommandId::Passwd, ArgError::BadPassword);
+        let bad = |_| Failure::usage(CommandId::Passwd);
         self.auth.check_password(new).map_err(bad)?;
         self.backend.password_changed(new)?;
         self.auth.set_password(new).map_err(bad)?;
@@ -381,9 +381,4 @@ fn write<'o>(
         (Some(r), Some(code)) => Outcome::ReplyThenClose(r, code),
         (None, _) => Outcome::Close(CloseCode::InternalError),
     }
-}
-
-fn invalid_args(id: CommandId, e: ArgError) -> Failure {
-    let msg = ParseError::InvalidArgs(id, e);
-    Failure::fmt(Ret::InvalidArgs, format_args!("{msg}"))
 }
