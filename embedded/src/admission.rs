@@ -124,7 +124,7 @@ pub enum Offense {
     /// Its upgrade request did not complete in time.
     SlowHandshake,
     /// Its upgrade request was rejected.
-    Rejected(crate::handshake::Rejection),
+    Rejected(crate::error::Rejection),
     /// Its session did not log in before the deadline.
     NoLogin,
 }

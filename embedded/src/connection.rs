@@ -46,12 +46,13 @@
 //!   buffer too (`send.rs` says why the split, and what it never sees).
 
 use embassy_time::{Duration, Instant, with_deadline, with_timeout};
-use lluav_core::websocket::{Opcode, header_len};
+use lluav_core::websocket::handshake::{self, KEY_LEN, Request, Upgrade};
+use lluav_core::websocket::policy::Policy;
+use lluav_core::websocket::{Opcode, close_reply, header_len};
 use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY};
 
-use crate::handshake::{self, Rejection, Request};
+use crate::error::{Error, Rejection};
 use crate::log::debug;
-use crate::policy::Policy;
 use crate::receive::{Event, Reader};
 use crate::send::{Outgoing, Sender, Sent, write_reply};
 use crate::service::{Handler, Service};
@@ -71,35 +72,6 @@ pub struct Limits {
     pub idle: Option<Duration>,
     /// How long the last close frame may take to be queued.
     pub close: Duration,
-}
-
-/// Why a connection ended without a close handshake.
-#[derive(Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Error<E> {
-    /// The stream failed.
-    Io(E),
-    /// The peer closed the stream.
-    PeerClosed,
-    /// Nothing arrived within the idle timeout.
-    Idle,
-    /// The session did not log in before its deadline (a 1008 close frame
-    /// was sent if the transmit buffer had room for it).
-    LoginTimeout,
-    /// The upgrade request was rejected (and answered with its status).
-    Rejected(Rejection),
-    /// The buffers are smaller than [`Limits`] and [`MIN_MESSAGE`] require.
-    Buffers,
-    /// embedded-websocket refused to write a frame (never expected: its
-    /// room in the transmit buffer is reserved first, and nothing is sent
-    /// after a close frame).
-    Framing,
-}
-
-impl<E> From<E> for Error<E> {
-    fn from(e: E) -> Self {
-        Error::Io(e)
-    }
 }
 
 /// One WebSocket connection: [`Connection::accept`] the upgrade, then
@@ -129,14 +101,15 @@ impl<'b> Connection<'b> {
         self.login = deadline;
     }
 
-    /// Reads and validates the upgrade request, checks it against `policy`
-    /// and asks `admit` (e.g. a per-address limit), and answers it: `101`
-    /// on success, the rejection's status (and an error) otherwise.
+    /// Reads the upgrade request, has the core judge it against `policy`
+    /// (the address the connection arrived on and the allow-lists), asks
+    /// `admit` (e.g. a per-address limit), and answers it: `101` on
+    /// success, the rejection's status (and an error) otherwise.
     pub async fn accept<T: Transport>(
         &mut self,
         io: &mut T,
         policy: &Policy<'_>,
-        admit: impl FnOnce(&Request<'_>) -> bool,
+        admit: impl FnOnce(&Upgrade<'_>) -> bool,
     ) -> Result<(), Error<T::Error>> {
         let reply = self.limits.reply;
         if self.reader.capacity() < MIN_MESSAGE
@@ -158,7 +131,7 @@ impl<'b> Connection<'b> {
                 (None, _) => return Err(Error::Rejected(Rejection::Incomplete)),
                 (_, None) => {}
                 (_, Some(Ok(_))) => break check(self.reader.request(), policy, admit),
-                (_, Some(Err(why))) => break Err(why),
+                (_, Some(Err(why))) => break Err(why.into()),
             }
         };
         let sent = match verdict {
@@ -318,17 +291,9 @@ impl<'b> Connection<'b> {
                 Ok(None)
             }
             Opcode::Close => {
-                let code = match payload {
-                    [] => CloseCode::Normal.code(),
-                    [_] => CloseCode::ProtocolError.code(),
-                    [hi, lo, reason @ ..] => match u16::from_be_bytes([*hi, *lo]) {
-                        code if !valid_close_code(code) => CloseCode::ProtocolError.code(),
-                        _ if core::str::from_utf8(reason).is_err() => CloseCode::InvalidPayload.code(),
-                        code => code,
-                    },
-                };
+                let code = close_reply(payload);
                 debug!("peer closed with {}", code);
-                self.sender.send(io, Outgoing::CloseReply(code)).await?;
+                self.sender.send(io, Outgoing::Close(code)).await?;
                 Ok(Some(code))
             }
             _ => Ok(None),
@@ -336,23 +301,18 @@ impl<'b> Connection<'b> {
     }
 }
 
-/// Validates a complete request head and checks it against `policy` and
-/// `admit`; the key to answer, or why the request is refused.
+/// Judges a complete request head against `policy` and `admit`; the key
+/// to answer, or why the request is refused.
 fn check<'r>(
     head: &'r [u8],
     policy: &Policy<'_>,
-    admit: impl FnOnce(&Request<'_>) -> bool,
-) -> Result<&'r [u8; handshake::KEY_LEN], Rejection> {
-    let request = handshake::parse(head)?;
-    policy.check(&request)?;
-    if !admit(&request) {
+    admit: impl FnOnce(&Upgrade<'_>) -> bool,
+) -> Result<&'r [u8; KEY_LEN], Rejection> {
+    let Request::Upgrade(upgrade) = handshake::judge(head, policy)? else {
+        return Err(Rejection::NotUpgrade);
+    };
+    if !admit(&upgrade) {
         return Err(Rejection::TooManySessions);
     }
-    Ok(request.key)
-}
-
-/// Close codes a peer may send (RFC 6455, section 7.4): the defined ones
-/// that may appear on the wire, and the registered and private ranges.
-fn valid_close_code(code: u16) -> bool {
-    matches!(code, 1000..=1003 | 1007..=1011 | 3000..=4999)
+    Ok(upgrade.key)
 }

@@ -12,10 +12,10 @@
 //! A slot is the session's two TCP buffers and its message buffer: frames
 //! are read straight out of the socket's receive buffer and replies written
 //! straight into its transmit buffer ([`connection`] says how, and why the
-//! message buffer remains). The upgrade request is validated by
-//! [`handshake`] and [`policy`] (Origin and Host), frames by the core's
-//! [`lluav_core::websocket`] codec (shared with lluavd),
-//! and [`admission`] decides who gets the few slots (a spare listener,
+//! message buffer remains). The upgrade request (its form and the Origin
+//! and Host policy) and the frames are judged by the core's
+//! [`lluav_core::websocket`], shared with lluavd, given the address each
+//! connection arrived on; [`admission`] decides who gets the few slots (a spare listener,
 //! eviction of half-open and not-logged-in connections, per-address
 //! limits, deadlines). embedded-websocket builds the `101` answer (its
 //! `Sec-WebSocket-Accept` value) and frames pongs and close frames; it
@@ -59,8 +59,7 @@ mod log;
 pub mod admission;
 pub mod board;
 pub mod connection;
-pub mod handshake;
-pub mod policy;
+pub mod error;
 mod receive;
 mod send;
 mod serve;
@@ -71,7 +70,8 @@ pub mod transport;
 
 use embassy_time::Duration;
 
-pub use connection::{Connection, Error, Limits, MIN_MESSAGE};
+pub use connection::{Connection, Limits, MIN_MESSAGE};
+pub use error::{Error, Rejection};
 pub use lluav_core;
 pub use serve::{Slot, serve};
 pub use service::{Echo, Handler, Service, SharedServer};
@@ -106,10 +106,11 @@ pub struct Config {
     /// How old a connection that has not logged in must be before a
     /// newcomer may evict it (see [`admission`]).
     pub reclaim_after: Duration,
-    /// `Origin` values accepted besides the vehicle's own (`*`: any); see
-    /// [`policy`].
+    /// Origins accepted besides the vehicle's own (`*`: any); see
+    /// [`lluav_core::websocket::policy`].
     pub allowed_origins: &'static [&'static str],
-    /// `Host` names accepted besides the adapter's address; see [`policy`].
+    /// `Host` names accepted besides the adapter's address; see
+    /// [`lluav_core::websocket::policy`].
     pub allowed_hosts: &'static [&'static str],
 }
 

@@ -10,10 +10,15 @@
 //! frame's payload in 125 bytes of its own, so nothing waits for bytes it
 //! has not consumed.
 
-use lluav_core::websocket::{self, Header, MAX_CLIENT_HEADER, MAX_CONTROL_PAYLOAD, Opcode, Utf8, Verdict};
+use lluav_core::websocket::handshake::Rejection;
+use lluav_core::websocket::{
+    self, Fragments, Header, Interrupt, MAX_CLIENT_HEADER, MAX_CONTROL_PAYLOAD, Opcode, Verdict,
+};
 use lluav_core::{CloseCode, Message};
 
-use crate::handshake::{MAX_REQUEST_HEAD, Rejection};
+/// The longest request head read (its bytes are held in the message
+/// buffer until answered); a longer one is refused with 431.
+pub(crate) const MAX_REQUEST_HEAD: usize = 1024;
 
 /// What the connection must act on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -44,10 +49,10 @@ struct Current {
 /// The receiving state of one connection.
 pub(crate) struct Reader<'b> {
     message: &'b mut [u8],
-    len: usize,
-    /// The opcode of the message being received, once its first frame came.
-    kind: Option<Opcode>,
-    utf8: Utf8,
+    /// Bytes of the request head in `message`, until frames start.
+    head: usize,
+    /// The message being received; its bytes are in `message`.
+    fragments: Fragments,
     carry: [u8; MAX_CLIENT_HEADER],
     carried: usize,
     frame: Option<Current>,
@@ -67,9 +72,8 @@ impl<'b> Reader<'b> {
     pub(crate) fn new(message: &'b mut [u8]) -> Self {
         Reader {
             message,
-            len: 0,
-            kind: None,
-            utf8: Utf8::new(),
+            head: 0,
+            fragments: Fragments::new(),
             carry: [0; MAX_CLIENT_HEADER],
             carried: 0,
             frame: None,
@@ -90,17 +94,17 @@ impl<'b> Reader<'b> {
     pub(crate) fn head(&mut self, window: &[u8]) -> (usize, Option<Result<usize, Rejection>>) {
         let limit = self.message.len().min(MAX_REQUEST_HEAD);
         for (i, &b) in window.iter().enumerate() {
-            let Some(slot) = self.message.get_mut(self.len).filter(|_| self.len < limit) else {
+            let Some(slot) = self.message.get_mut(self.head).filter(|_| self.head < limit) else {
                 return (i, Some(Err(Rejection::TooLarge)));
             };
             *slot = b;
-            self.len += 1;
+            self.head += 1;
             if self
                 .message
-                .get(..self.len)
+                .get(..self.head)
                 .is_some_and(|m| m.ends_with(b"\r\n\r\n"))
             {
-                return (i + 1, Some(Ok(self.len)));
+                return (i + 1, Some(Ok(self.head)));
             }
         }
         (window.len(), None)
@@ -108,29 +112,29 @@ impl<'b> Reader<'b> {
 
     /// The request head gathered by [`Reader::head`].
     pub(crate) fn request(&self) -> &[u8] {
-        self.message.get(..self.len).unwrap_or(&[])
+        self.message.get(..self.head).unwrap_or(&[])
     }
 
     /// Forgets the request head: frames come next.
     pub(crate) fn start_frames(&mut self) {
-        self.len = 0;
+        self.head = 0;
     }
 
     /// The message to hand to the service after [`Event::Message`],
     /// [`Event::InvalidText`] or [`Event::Oversized`].
     pub(crate) fn message(&self, event: Event) -> Message<'_> {
-        let body = self.message.get(..self.len).unwrap_or(&[]);
-        match (event, self.kind) {
-            (Event::Oversized, _) => Message::Oversized,
-            (_, Some(Opcode::Binary)) => Message::Binary(body),
-            _ => Message::Text(body),
+        match event {
+            Event::Oversized => Message::Oversized,
+            _ => {
+                let body = self.message.get(..self.fragments.received()).unwrap_or(&[]);
+                self.fragments.message(body)
+            }
         }
     }
 
     /// Forgets the message handed to the service.
     pub(crate) fn finish_message(&mut self) {
-        self.kind = None;
-        self.len = 0;
+        self.fragments.reset();
     }
 
     /// The payload of the control frame of the last [`Event::Control`].
@@ -201,22 +205,11 @@ impl<'b> Reader<'b> {
 
     /// Checks a new frame against the message in progress.
     fn begin(&mut self, header: &Header) -> Option<Event> {
-        if header.opcode.is_control() {
-            return None;
+        match self.fragments.begin(header, self.message.len()) {
+            Ok(()) => None,
+            Err(Interrupt::Fail(code)) => Some(Event::Fail(code)),
+            Err(Interrupt::Oversized) => Some(Event::Oversized),
         }
-        match (header.opcode, self.kind) {
-            (Opcode::Continuation, Some(_)) => {}
-            (Opcode::Continuation, None) | (_, Some(_)) => {
-                return Some(Event::Fail(CloseCode::ProtocolError));
-            }
-            (opcode, None) => {
-                self.kind = Some(opcode);
-                self.len = 0;
-                self.utf8 = Utf8::new();
-            }
-        }
-        let room = self.message.len() - self.len;
-        (header.len > room as u64).then_some(Event::Oversized)
     }
 
     /// Takes what `bytes` holds of the current frame's payload; returns the
@@ -228,10 +221,11 @@ impl<'b> Reader<'b> {
         let offset = current.got as usize;
         let src = bytes.get(..take).unwrap_or(&[]);
         let control = header.opcode.is_control();
+        let len = self.fragments.received();
         let dst = if control {
             self.control.get_mut(offset..offset + take)
         } else {
-            self.message.get_mut(self.len..self.len + take)
+            self.message.get_mut(len..len + take)
         };
         let Some(dst) = dst else {
             return (0, Some(Event::Fail(CloseCode::InternalError)));
@@ -240,8 +234,9 @@ impl<'b> Reader<'b> {
         websocket::unmask(dst, header.mask, offset);
         current.got += take as u64;
         if !control {
-            self.len += take;
-            if self.kind == Some(Opcode::Text) && self.text_verdict(header.fin && current.got == header.len) {
+            let message = self.message.get(..len + take).unwrap_or(&[]);
+            let complete = header.fin && current.got == header.len;
+            if self.fragments.extend(message, complete) == Verdict::Invalid {
                 return (take, Some(Event::InvalidText));
             }
         }
@@ -258,12 +253,5 @@ impl<'b> Reader<'b> {
             header.fin.then_some(Event::Message)
         };
         (take, event)
-    }
-
-    /// Whether the text so far is invalid (`last`: the message is complete,
-    /// so it may not end inside a character either).
-    fn text_verdict(&mut self, last: bool) -> bool {
-        let text = self.message.get(..self.len).unwrap_or(&[]);
-        self.utf8.extend(text) == Verdict::Invalid || (last && !self.utf8.complete(self.len))
     }
 }

@@ -8,10 +8,11 @@
 //! Switching Protocols` answer with its `Sec-WebSocket-Accept` value (the
 //! SHA-1 and base64 of the client's key and the protocol's GUID:
 //! `WebSocketServer::server_accept`), frames every pong and close frame
-//! (`write`, `close`), and its state refuses any frame after our close
-//! frame. All of that is written by it straight into the socket's
-//! transmit buffer, in the space [`transport::reserve`] made contiguous
-//! (so are our own refusals, `400`, `403`, `429`).
+//! (`write`: ours and the answer to the peer's are the same frame), and
+//! its state refuses any frame after a close frame. All of that is written
+//! by it straight into the socket's transmit buffer, in the space
+//! [`transport::reserve`] made contiguous (so are our own refusals: the
+//! status of a [`Rejection`], no body).
 //!
 //! It is wrapped so that none of its hazards reaches a board:
 //!
@@ -20,9 +21,10 @@
 //!   `Sec-WebSocket-Key` or `Sec-WebSocket-Protocol`: a halted board) and
 //!   its frame reader (which lets through reserved bits, unmasked client
 //!   frames and over-long or fragmented control frames) are not used:
-//!   [`crate::handshake`], [`crate::policy`] and [`lluav_core::websocket`] stay in
-//!   front, and hand it only a key [`crate::handshake::parse`] accepted
-//!   (24 base64 characters) and no subprotocol (none is selected).
+//!   the core's [`lluav_core::websocket`] (the upgrade check, the
+//!   Origin/Host policy, frames) stays in front, and hands it only a key
+//!   the core accepted (24 base64 characters) and no subprotocol (none is
+//!   selected).
 //! - Its `WebSocketKey` is a 24-byte heapless string whose `From<&str>`
 //!   panics on a longer one: the key is converted with `parse`, which
 //!   fails instead ([`websocket_key`]).
@@ -50,12 +52,12 @@
 //! every reply, so a text frame's 2 or 4 header bytes are written by
 //! [`write_header`].
 
-use embedded_websocket::{WebSocketCloseStatusCode, WebSocketKey, WebSocketSendMessageType, WebSocketServer};
+use embedded_websocket::{WebSocketKey, WebSocketSendMessageType, WebSocketServer};
+use lluav_core::websocket::handshake::KEY_LEN;
 use lluav_core::websocket::{MAX_CONTROL_PAYLOAD, Opcode, header_len, write_header};
 use lluav_core::{CloseCode, Outcome, Ticket};
 
-use crate::connection::Error;
-use crate::handshake::{KEY_LEN, Rejection};
+use crate::error::{Error, Rejection};
 use crate::transport::{self, Transport};
 
 /// The length of embedded-websocket's `101` answer without a subprotocol:
@@ -63,8 +65,8 @@ use crate::transport::{self, Transport};
 /// `Sec-WebSocket-Accept` value.
 pub(crate) const ANSWER_LEN: usize = 129;
 
-/// embedded-websocket's form of a key [`crate::handshake::parse`]
-/// accepted (24 base64 characters, so it always fits).
+/// embedded-websocket's form of a key the core's upgrade check accepted
+/// (24 base64 characters, so it always fits).
 pub(crate) fn websocket_key(key: &[u8; KEY_LEN]) -> Option<WebSocketKey> {
     core::str::from_utf8(key).ok()?.parse().ok()
 }
@@ -128,53 +130,68 @@ pub(crate) enum Outgoing<'a> {
     /// The HTTP status refusing an upgrade request (ours).
     Refusal(Rejection),
     /// The `101 Switching Protocols` answer to a request with this key
-    /// (validated by [`crate::handshake::parse`]); frames may be sent from
+    /// (validated by the core's upgrade check); frames may be sent from
     /// then on.
     Switch(&'a [u8; KEY_LEN]),
     /// A pong carrying a ping's payload (at most 125 bytes, as
     /// [`lluav_core::websocket`] checked).
     Pong(&'a [u8]),
-    /// Our close frame with this code, starting the closing handshake.
+    /// A close frame with this code: ours, starting the closing
+    /// handshake, or the answer to the peer's, ending it (the same frame;
+    /// embedded-websocket frames nothing after it either way).
     Close(u16),
-    /// The answer to the peer's close frame, ending the closing handshake.
-    CloseReply(u16),
 }
 
 impl Outgoing<'_> {
     /// Its length in bytes.
     fn len(&self) -> usize {
         match self {
-            Outgoing::Refusal(why) => why.answer().len(),
+            Outgoing::Refusal(_) => REFUSAL.len(),
             Outgoing::Switch(_) => ANSWER_LEN,
             Outgoing::Pong(payload) => 2 + payload.len(),
-            Outgoing::Close(_) | Outgoing::CloseReply(_) => 4,
+            Outgoing::Close(_) => 4,
         }
     }
 
     /// Writes it into `out`, which is [`Outgoing::len`] bytes long;
-    /// `None` if embedded-websocket refuses (a frame after our close
-    /// frame, or a payload over 125 bytes).
+    /// `None` if embedded-websocket refuses (a frame after a close frame,
+    /// or a payload over 125 bytes).
     fn write(self, ws: &mut WebSocketServer, out: &mut [u8]) -> Option<usize> {
-        let written = match self {
-            Outgoing::Refusal(why) => {
-                out.copy_from_slice(why.answer());
-                Ok(out.len())
+        let code;
+        let (kind, payload) = match self {
+            Outgoing::Refusal(why) => return Some(write_refusal(why, out)),
+            Outgoing::Switch(key) => {
+                let n = ws.server_accept(&websocket_key(key)?, None, out).ok()?;
+                return (n == ANSWER_LEN).then_some(n);
             }
-            Outgoing::Switch(key) => ws.server_accept(&websocket_key(key)?, None, out),
             Outgoing::Pong(payload) if payload.len() <= MAX_CONTROL_PAYLOAD => {
-                ws.write(WebSocketSendMessageType::Pong, true, payload, out)
+                (WebSocketSendMessageType::Pong, payload)
             }
             Outgoing::Pong(_) => return None,
-            Outgoing::Close(code) => ws.close(WebSocketCloseStatusCode::Custom(code), None, out),
-            Outgoing::CloseReply(code) => ws.write(
-                WebSocketSendMessageType::CloseReply,
-                true,
-                &code.to_be_bytes(),
-                out,
-            ),
+            Outgoing::Close(c) => {
+                code = c.to_be_bytes();
+                (WebSocketSendMessageType::CloseReply, &code[..])
+            }
         };
-        written.ok().filter(|&n| n == self.len())
+        let n = ws.write(kind, true, payload, out).ok()?;
+        (n == 2 + payload.len()).then_some(n)
     }
+}
+
+/// Every refusal: its status code goes in place of the zeros. No reason
+/// phrase (RFC 9112 allows an empty one, and clients ignore it), no body,
+/// and the connection closes: one template for every status.
+const REFUSAL: &[u8; 55] = b"HTTP/1.1 000 \r\nConnection: close\r\nContent-Length: 0\r\n\r\n";
+
+/// Writes the answer refusing a request for `why` into `out`, which is
+/// [`REFUSAL`]'s length; returns that length.
+fn write_refusal(why: Rejection, out: &mut [u8]) -> usize {
+    let (code, _) = why.status();
+    out.copy_from_slice(REFUSAL);
+    for (digit, unit) in out.iter_mut().skip(9).zip([100, 10, 1]) {
+        *digit = b'0' + (code / unit % 10) as u8;
+    }
+    REFUSAL.len()
 }
 
 /// Runs `handle` on the reply room of `room` (`capacity` bytes behind room
@@ -218,6 +235,8 @@ pub(crate) fn write_reply(
 
 #[cfg(test)]
 mod tests {
+    use lluav_core::websocket::handshake;
+
     use super::*;
 
     /// The RFC 6455 example: its key and the accept value answering it.
@@ -265,21 +284,29 @@ Sec-WebSocket-Accept: s3pPLMBiTxaQ9kYGzzhZRbK+xOo=\r\n\r\n"
     }
 
     #[test]
-    fn nothing_is_framed_after_our_close_frame() {
+    fn nothing_is_framed_after_a_close_frame() {
         let mut out = [0u8; 8];
         let mut ws = open();
-        let n = ws
-            .close(WebSocketCloseStatusCode::Custom(4000), None, &mut out)
-            .unwrap();
+        let n = Outgoing::Close(4000).write(&mut ws, &mut out[..4]).unwrap();
         assert_eq!(out[..n], [0x88, 2, 0x0f, 0xa0]);
-        assert!(
-            ws.write(WebSocketSendMessageType::Pong, true, &[], &mut out)
-                .is_err()
+        assert_eq!(Outgoing::Pong(&[]).write(&mut ws, &mut out[..2]), None);
+        assert_eq!(Outgoing::Close(1000).write(&mut ws, &mut out[..4]), None);
+    }
+
+    #[test]
+    fn refusals_carry_their_status_and_close() {
+        let mut out = [0u8; REFUSAL.len()];
+        let refused = Rejection::Request(handshake::Rejection::UpgradeRequired);
+        let n = Outgoing::Refusal(refused).write(&mut open(), &mut out).unwrap();
+        assert_eq!(n, REFUSAL.len());
+        assert_eq!(
+            &out[..],
+            b"HTTP/1.1 426 \r\nConnection: close\r\nContent-Length: 0\r\n\r\n"
         );
-        assert!(
-            ws.close(WebSocketCloseStatusCode::NormalClosure, None, &mut out)
-                .is_err()
-        );
+        let n = Outgoing::Refusal(Rejection::TooManySessions)
+            .write(&mut open(), &mut out)
+            .unwrap();
+        assert!(out[..n].starts_with(b"HTTP/1.1 429 \r\n"));
     }
 
     #[test]

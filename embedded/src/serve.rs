@@ -8,14 +8,15 @@ use embassy_net::Stack;
 use embassy_net::tcp::{Error as TcpError, TcpSocket};
 use embassy_time::{Instant, with_timeout};
 use lluav_core::MIN_RESPONSE_CAPACITY;
+use lluav_core::websocket::handshake::Upgrade;
 use lluav_core::websocket::header_len;
+use lluav_core::websocket::policy::Policy;
 
 use crate::Config;
 use crate::admission::{Offense, Refusal, Table};
-use crate::connection::{Connection, Error, Limits, MIN_MESSAGE};
-use crate::handshake::Request;
+use crate::connection::{Connection, Limits, MIN_MESSAGE};
+use crate::error::Error;
 use crate::log::{debug, info, warning};
-use crate::policy::Policy;
 use crate::service::{Handler, Service};
 
 /// The buffers of one session: the TCP receive buffer (`RX` bytes: the
@@ -204,11 +205,12 @@ impl<const N: usize> Place<'_, N> {
         let mut conn = Connection::new(message, limits);
         let accepted = {
             let policy = Policy {
-                address: local.addr.into(),
+                local: local.addr.into(),
+                tls: false,
                 allowed_origins: config.allowed_origins,
                 allowed_hosts: config.allowed_hosts,
             };
-            let admit = |_: &Request<'_>| self.table.may_open(self.index, peer, config);
+            let admit = |_: &Upgrade<'_>| self.table.may_open(self.index, peer, config);
             with_timeout(config.handshake_timeout, conn.accept(socket, &policy, admit)).await
         };
         match accepted {

@@ -205,27 +205,24 @@ fn unmasked_frame_fails_with_1002() {
     });
 }
 
+/// RFC 6455, section 5.2: "the minimal number of bytes MUST be used to
+/// encode the length". A 3-byte frame sent with a 16-bit length, and a
+/// 200-byte one with a 64-bit length, fail with 1002; the board serves on.
 #[test]
-fn close_with_invalid_code_is_answered_with_1002() {
+fn lengths_not_in_their_minimal_form_fail_with_1002() {
     with_server(|stack| async move {
-        let c = Client::connect(stack).await;
-        assert_eq!(c.close(1005).await, 1002);
-    });
-}
-
-/// embedded-websocket 0.9.5 would panic on these (24-byte heapless strings
-/// with an unwrap); the adapter answers 400 and keeps serving.
-#[test]
-fn overlong_key_and_protocol_get_400_and_the_board_keeps_serving() {
-    with_server(|stack| async move {
-        let long_key = format!("Sec-WebSocket-Key: {KEY}{KEY}\r\n");
-        let long_protocol =
-            format!("Sec-WebSocket-Key: {KEY}\r\nSec-WebSocket-Protocol: lluav-protocol-name-over-24\r\n");
-        let odd_key = "Sec-WebSocket-Key: not base64 at all!!!!!!\r\n".to_string();
-        for extra in [long_key, long_protocol, odd_key, String::new()] {
-            let mut c = Client::tcp(stack).await;
-            let head = c.request(&upgrade_request(&extra)).await;
-            assert!(head.starts_with("HTTP/1.1 400 "), "{extra}: {head}");
+        let mask = [1, 2, 3, 4];
+        let short = [&[0x81, 0x80 | 126, 0, 3][..], &mask, b"abc"].concat();
+        let medium = [
+            &[0x81, 0x80 | 127, 0, 0, 0, 0, 0, 0, 0, 200][..],
+            &mask,
+            &[b'a'; 200],
+        ]
+        .concat();
+        for frame in [short, medium] {
+            let mut c = Client::connect(stack).await;
+            c.raw(&frame).await;
+            assert_eq!(c.recv().await.close_code(), 1002);
             assert!(c.closed().await);
         }
         let mut c = Client::connect(stack).await;
@@ -234,7 +231,41 @@ fn overlong_key_and_protocol_get_400_and_the_board_keeps_serving() {
 }
 
 #[test]
-fn request_head_larger_than_the_buffer_gets_400() {
+fn close_with_invalid_code_is_answered_with_1002() {
+    with_server(|stack| async move {
+        let c = Client::connect(stack).await;
+        assert_eq!(c.close(1005).await, 1002);
+    });
+}
+
+/// embedded-websocket 0.9.5 would panic on an over-long key or protocol
+/// (24-byte heapless strings with an unwrap) if it read the request: the
+/// core's upgrade check stays in front, so a bad key gets 400, an offered
+/// protocol of any length is ignored (none is selected), and the board
+/// keeps serving.
+#[test]
+fn overlong_keys_get_400_offered_protocols_are_ignored_and_the_board_keeps_serving() {
+    with_server(|stack| async move {
+        let long_key = format!("Sec-WebSocket-Key: {KEY}{KEY}\r\n");
+        let odd_key = "Sec-WebSocket-Key: not base64 at all!!!!!!\r\n".to_string();
+        for extra in [long_key, odd_key, String::new()] {
+            let mut c = Client::tcp(stack).await;
+            let head = c.request(&upgrade_request(&extra)).await;
+            assert!(head.starts_with("HTTP/1.1 400 "), "{extra}: {head}");
+            assert!(c.closed().await);
+        }
+        let long_protocol =
+            format!("Sec-WebSocket-Key: {KEY}\r\nSec-WebSocket-Protocol: lluav-protocol-name-over-24\r\n");
+        let mut c = Client::tcp(stack).await;
+        let head = c.request(&upgrade_request(&long_protocol)).await;
+        assert!(head.starts_with("HTTP/1.1 101 "), "{head}");
+        assert!(!head.contains("Sec-WebSocket-Protocol"), "{head}");
+        assert_eq!(c.call(&format!("login {PASSWORD}")).await["ret"], 0);
+    });
+}
+
+#[test]
+fn request_head_longer_than_the_adapter_reads_gets_431() {
     with_server(|stack| async move {
         let mut c = Client::tcp(stack).await;
         let filler: String = (0..40)
@@ -243,7 +274,7 @@ fn request_head_larger_than_the_buffer_gets_400() {
         let head = c
             .request(&upgrade_request(&format!("Sec-WebSocket-Key: {KEY}\r\n{filler}")))
             .await;
-        assert!(head.starts_with("HTTP/1.1 400 "), "{head}");
+        assert!(head.starts_with("HTTP/1.1 431 "), "{head}");
     });
 }
 
