@@ -1,7 +1,8 @@
-//! Arbitrary bytes as the HTTP upgrade request, into both adapters'
-//! connection code: never a panic. The embedded adapter answers each
-//! request with the status the core's upgrade check and Origin/Host policy
-//! give it (101 for an upgrade they accept).
+//! Arbitrary bytes as the HTTP upgrade request. The core's upgrade check
+//! and Origin/Host policy judge it (never a panic), and both adapters'
+//! connection code, configured alike, answer it: each with the status the
+//! core's verdict gives (101 for an upgrade it accepts, its rejection's
+//! status otherwise), so the MCU and lluavd enforce one policy.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -10,22 +11,28 @@ fuzz_target!(|data: &[u8]| {
     let Some((&piece, request)) = data.split_first() else {
         return;
     };
+    let expected = lluav_fuzz::expected_status(request);
 
-    let out = lluav_fuzz::embedded(request, usize::from(piece % 64) + 1);
-    let status = lluav_fuzz::status(&out);
+    let mcu = lluav_fuzz::embedded(request, usize::from(piece % 64) + 1);
+    let host = lluav_fuzz::host(request, &[]);
+    let answered = (lluav_fuzz::status(&mcu), lluav_fuzz::status(&host));
     assert!(
-        out.is_empty() || status.is_some(),
-        "unexpected answer {:?}",
-        String::from_utf8_lossy(&out)
+        mcu.is_empty() || answered.0.is_some(),
+        "the MCU answered {:?}",
+        String::from_utf8_lossy(&mcu)
     );
-    if let Some((expected, _)) = lluav_fuzz::expected_status(request) {
-        assert_eq!(status, Some(expected), "{:?}", String::from_utf8_lossy(&out));
+    assert!(
+        host.is_empty() || answered.1.is_some(),
+        "lluavd answered {:?}",
+        String::from_utf8_lossy(&host)
+    );
+    if let Some((mcu_status, host_status)) = expected {
+        assert_eq!(
+            answered,
+            (Some(mcu_status), Some(host_status)),
+            "MCU {:?}, lluavd {:?}",
+            String::from_utf8_lossy(&mcu),
+            String::from_utf8_lossy(&host)
+        );
     }
-
-    let out = lluav_fuzz::host(request, &[]);
-    assert!(
-        out.is_empty() || out.starts_with(b"HTTP/1.1 "),
-        "{:?}",
-        String::from_utf8_lossy(&out)
-    );
 });

@@ -500,7 +500,8 @@ mod tests {
         let loopback = std::net::IpAddr::V4(Ipv4Addr::LOCALHOST);
         assert!(
             s.policy
-                .check("drone.local", Some("https://gcs.example"), loopback, true)
+                .at(loopback, true)
+                .check("drone.local", Some("https://gcs.example"))
                 .is_ok()
         );
         assert!(s.tls.is_none());

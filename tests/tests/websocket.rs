@@ -2,7 +2,9 @@
 //! limits, over real sockets; the behaviour over both `ws://` and `wss://`.
 
 use futures_util::future::join_all;
-use lluav_tests::{Conn, Lluavd, Options, Received, Scheme};
+use lluav_tests::{Conn, Lluavd, Options, Received, Scheme, WAIT, upgrade_request};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::frame::coding::Data;
 
@@ -67,6 +69,58 @@ async fn fragmented_message_over_the_limit_closes_with_1009(scheme: Scheme) {
     c.send_text_frame(&chunk, Data::Continue, false).await;
     c.send_text_frame(&chunk, Data::Continue, true).await;
     assert_eq!(c.close_code().await, Some(1009));
+}
+
+/// RFC 6455, section 5.2: "the minimal number of bytes MUST be used to
+/// encode the length". A 3-byte frame sent with a 16-bit length, and a
+/// 200-byte one with a 64-bit length, close with 1002 (no WebSocket library
+/// sends them: the frames go over a plain TCP stream after a hand-made
+/// upgrade).
+#[tokio::test]
+async fn lengths_not_in_their_minimal_form_close_with_1002() {
+    let (_dir, daemon) = daemon_with(Scheme::Ws, &[]).await;
+    let mask = [1, 2, 3, 4];
+    let short = [&[0x81, 0x80 | 126, 0, 3][..], &mask, b"abc"].concat();
+    let medium = [
+        &[0x81, 0x80 | 127, 0, 0, 0, 0, 0, 0, 0, 200][..],
+        &mask,
+        &[b'a'; 200],
+    ]
+    .concat();
+    for frame in [short, medium] {
+        let mut tcp = TcpStream::connect(daemon.addr).await.expect("TCP connect");
+        tcp.write_all(upgrade_request(daemon.addr, "").as_bytes())
+            .await
+            .expect("upgrade written");
+        let mut got = Vec::new();
+        let mut buf = [0u8; 1024];
+        let read = async {
+            // The 101's head, then the close frame: 2 bytes and the code.
+            loop {
+                let head = got.windows(4).position(|w| w == b"\r\n\r\n").map(|i| i + 4);
+                match head {
+                    Some(end) if got.len() >= end + 4 => return end,
+                    Some(end) if got.len() == end => tcp.write_all(&frame).await.expect("frame written"),
+                    _ => {}
+                }
+                match tcp.read(&mut buf).await {
+                    Ok(0) | Err(_) => panic!("closed early: {:?}", String::from_utf8_lossy(&got)),
+                    Ok(n) => got.extend_from_slice(&buf[..n]),
+                }
+            }
+        };
+        let end = tokio::time::timeout(WAIT, read).await.expect("answers in time");
+        assert!(
+            got.starts_with(b"HTTP/1.1 101 "),
+            "{:?}",
+            String::from_utf8_lossy(&got)
+        );
+        assert_eq!(
+            got[end..end + 4],
+            [0x88, 2, 0x03, 0xea],
+            "a close frame with 1002"
+        );
+    }
 }
 
 async fn ping_gets_pong_with_the_same_payload(scheme: Scheme) {

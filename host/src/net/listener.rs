@@ -19,7 +19,9 @@ use tracing::{debug, info, warn};
 
 use super::buffers::Buffers;
 use super::connection::{Connection, Context};
-use super::handshake::{self, HeadError, Refusal, Request};
+use lluav_core::websocket::handshake::{self as upgrade_check, Rejection, Request};
+
+use super::handshake::{self, HeadError, Refusal};
 use super::report::{Offence, Reports};
 use super::slots::{Capacity, Full, Held, Pending, Slots};
 use super::{Handler, LINGER, Limits, Policy};
@@ -207,25 +209,26 @@ async fn upgrade<S, H>(
     let len = match head {
         Ok(Ok(len)) => len,
         Ok(Err(HeadError::Closed)) => return,
-        Ok(Err(HeadError::Refused(refusal))) => {
+        Ok(Err(HeadError::TooLarge)) => {
+            let refusal = Refusal::Request(Rejection::TooLarge);
             return refuse(stream, peer, &refusal, Offence::BadRequest, deadline, shared).await;
         }
         Err(_) => return shared.reports.note(peer.ip(), Offence::HandshakeTimeout),
     };
     let leftover = buf.split_off(len);
-    let tls = shared.config.tls.is_some();
-    let key = match handshake::judge(&buf, &shared.config.policy, local, tls) {
-        Ok(Request::Upgrade { key }) => key,
-        Ok(Request::Http { method, target }) => {
-            let answer = handshake::console_response(shared.config.console, &method, &target);
+    let rules = shared.config.policy.at(local, shared.config.tls.is_some());
+    let key = match upgrade_check::judge(&buf, &rules) {
+        Ok(Request::Upgrade(upgrade)) => *upgrade.key,
+        Ok(Request::Plain { method, target }) => {
+            let answer = handshake::console_response(shared.config.console, method, target);
             return answer_and_close(stream, &answer, deadline).await;
         }
-        Err(refusal) => {
-            let offence = match refusal {
-                Refusal::Forbidden(_) => Offence::Forbidden,
+        Err(why) => {
+            let offence = match why {
+                Rejection::Forbidden(_) => Offence::Forbidden,
                 _ => Offence::BadRequest,
             };
-            return refuse(stream, peer, &refusal, offence, deadline, shared).await;
+            return refuse(stream, peer, &Refusal::Request(why), offence, deadline, shared).await;
         }
     };
     let slot = match shared.slots.admit(pending, peer.ip()) {

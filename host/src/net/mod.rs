@@ -4,8 +4,9 @@
 //!
 //! - [`listener`]: the accept loop, the handshake and session pools and
 //!   the per-address limits ([`slots`]), shutdown;
-//! - [`handshake`]: the request head, read and judged by us (RFC 6455,
-//!   the [`policy`] on `Origin` and `Host`), answered `101` or refused;
+//! - [`handshake`]: the request head, read, judged by the core (RFC 6455,
+//!   the `Origin` and `Host` rules with the operator's [`policy`] lists and
+//!   the address the connection arrived on), answered `101` or refused;
 //! - [`connection`]: one session after its `101`, the [`Connection`]:
 //!   WebSocket frames (the core's [`lluav_core::websocket`] codec) read
 //!   and assembled by a [`reader`], written by [`frame`],
