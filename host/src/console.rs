@@ -3,7 +3,8 @@
 //! The assets under `host/console/` are compiled into the binary, so there is
 //! nothing to install and nothing is fetched from elsewhere. The network
 //! layer reads the HTTP request head; a request that is not a WebSocket
-//! upgrade is answered here with [`respond`], and never reaches the protocol.
+//! upgrade is answered here ([`handler`], which the daemon passes to the
+//! network layer, and [`respond`]), and never reaches the protocol.
 //! The page then opens a WebSocket to the same origin and is just another
 //! client of the protocol.
 //!
@@ -13,6 +14,9 @@
 //! origin only.
 
 use std::fmt::Write as _;
+use std::sync::Arc;
+
+use crate::net::Http;
 
 /// Content-Security-Policy of the page and its assets: everything from the
 /// page's own origin, nothing inline, no plugins, no framing. CSP level 3
@@ -162,6 +166,12 @@ pub fn respond(enabled: bool, method: &str, target: &str) -> Response {
         Some(asset) => Response::asset(asset),
         None => Response::not_found(),
     }
+}
+
+/// The console as the network layer's answer to plain HTTP requests
+/// (`enabled`: false with `--no-console`, when every path answers 404).
+pub fn handler(enabled: bool) -> Http {
+    Arc::new(move |method: &str, target: &str| respond(enabled, method, target).to_bytes(method == "HEAD"))
 }
 
 /// The path of a request target, without query or fragment; the

@@ -21,6 +21,7 @@ use tracing::{error, info, warn};
 
 use crate::companion::{self, Companion, CompanionConfig};
 use crate::config::{Settings, TlsFiles};
+use crate::console;
 use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
 use crate::net::{self, Echo, Handler};
 use crate::notify::{self, Counted, Link, Notifier, Status};
@@ -290,7 +291,7 @@ impl<V: Vehicle> Daemon<V> {
             limits: settings.limits,
             policy: settings.policy.clone(),
             tls,
-            console: settings.console,
+            http: Some(console::handler(settings.console)),
         };
         let listener = TcpListener::bind(settings.bind)
             .await

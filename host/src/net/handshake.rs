@@ -2,8 +2,8 @@
 //! size, judged by the core ([`lluav_core::websocket::handshake`]: RFC
 //! 6455's upgrade check and the Origin/Host policy, the MCU's too), and
 //! answered — `101` and the stream goes on to the WebSocket layer, a plain
-//! HTTP request goes to the console, anything else gets its status and is
-//! closed.
+//! HTTP request goes to the [`Http`](super::Http) handler the daemon
+//! passed in (the console), anything else gets its status and is closed.
 
 use std::fmt;
 
@@ -11,8 +11,6 @@ use lluav_core::websocket::handshake::{KEY_LEN, Rejection, head_end};
 use lluav_core::websocket::policy::Forbidden;
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio_tungstenite::tungstenite::handshake::derive_accept_key;
-
-use crate::console;
 
 /// Largest request head read; a longer one is refused with 431.
 pub const MAX_HEAD: usize = 8 * 1024;
@@ -89,9 +87,9 @@ pub fn switching_protocols(key: &[u8; KEY_LEN]) -> Vec<u8> {
     .into_bytes()
 }
 
-/// The console's answer to a plain request.
-pub fn console_response(enabled: bool, method: &str, target: &str) -> Vec<u8> {
-    console::respond(enabled, method, target).to_bytes(method == "HEAD")
+/// The answer to a plain HTTP request when the daemon passed no handler.
+pub fn not_found() -> Vec<u8> {
+    b"HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n".to_vec()
 }
 
 /// Why no complete head arrived.

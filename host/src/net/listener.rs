@@ -24,7 +24,7 @@ use lluav_core::websocket::handshake::{self as upgrade_check, Rejection, Request
 use super::handshake::{self, HeadError, Refusal};
 use super::report::{Offence, Reports};
 use super::slots::{Capacity, Full, Held, Pending, Slots};
-use super::{Handler, LINGER, Limits, Policy};
+use super::{Handler, Http, LINGER, Limits, Policy};
 
 /// Everything a listener serves with.
 #[derive(Clone, Default)]
@@ -35,8 +35,8 @@ pub struct Config {
     pub policy: Policy,
     /// `Some`: `wss://`, TLS with this acceptor on the same port.
     pub tls: Option<TlsAcceptor>,
-    /// Whether plain HTTP requests get the web console.
-    pub console: bool,
+    /// Answers plain HTTP requests (the daemon's console); `None`: 404.
+    pub http: Option<Http>,
 }
 
 impl Config {
@@ -220,7 +220,11 @@ async fn upgrade<S, H>(
     let key = match upgrade_check::judge(&buf, &rules) {
         Ok(Request::Upgrade(upgrade)) => *upgrade.key,
         Ok(Request::Plain { method, target }) => {
-            let answer = handshake::console_response(shared.config.console, method, target);
+            let answer = shared
+                .config
+                .http
+                .as_ref()
+                .map_or_else(handshake::not_found, |http| http(method, target));
             return answer_and_close(stream, &answer, deadline).await;
         }
         Err(why) => {
@@ -333,4 +337,41 @@ async fn answer_and_close<S: AsyncRead + AsyncWrite + Unpin>(
         while let Ok(1..) = stream.read(&mut sink).await {}
     })
     .await;
+}
+
+#[cfg(test)]
+mod tests {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    use super::*;
+    use crate::net::Echo;
+
+    /// Sends `request` to a connection served with `config`; its answer.
+    async fn answer(config: Config, request: &str) -> String {
+        let (mut client, server) = tokio::io::duplex(4096);
+        let (_stop, stop) = watch::channel(false);
+        let peer: SocketAddr = ([127, 0, 0, 1], 1).into();
+        let serve = serve_stream(server, peer, peer.ip(), Arc::new(Echo), config, stop);
+        let talk = async {
+            client.write_all(request.as_bytes()).await.expect("written");
+            let mut out = Vec::new();
+            client.read_to_end(&mut out).await.expect("read");
+            String::from_utf8(out).expect("text")
+        };
+        let ((), out) = tokio::join!(serve, talk);
+        out
+    }
+
+    #[tokio::test]
+    async fn plain_http_goes_to_the_handler_passed_in_or_gets_404() {
+        let request = "GET /page?x HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
+        let none = answer(Config::default(), request).await;
+        assert!(none.starts_with("HTTP/1.1 404 "), "{none}");
+        let http: Http = Arc::new(|method: &str, target: &str| format!("{method} {target}").into_bytes());
+        let config = Config {
+            http: Some(http),
+            ..Config::default()
+        };
+        assert_eq!(answer(config, request).await, "GET /page?x");
+    }
 }

@@ -6,7 +6,8 @@
 //!   the per-address limits ([`slots`]), shutdown;
 //! - [`handshake`]: the request head, read, judged by the core (RFC 6455,
 //!   the `Origin` and `Host` rules with the operator's [`policy`] lists and
-//!   the address the connection arrived on), answered `101` or refused;
+//!   the address the connection arrived on), answered `101` or refused; a
+//!   plain HTTP request goes to the daemon's [`Http`] handler;
 //! - [`connection`]: one session after its `101`, the [`Connection`]:
 //!   WebSocket frames (the core's [`lluav_core::websocket`] codec) read
 //!   and assembled by a [`reader`], written by [`frame`],
@@ -33,6 +34,7 @@ pub mod woken;
 
 use std::future::Future;
 use std::net::SocketAddr;
+use std::sync::Arc;
 use std::time::Duration;
 
 use lluav_core::{Message, Outcome};
@@ -40,6 +42,12 @@ use lluav_core::{Message, Outcome};
 pub use connection::Connection;
 pub use listener::{Config, serve, serve_stream};
 pub use policy::Policy;
+
+/// Answers a plain HTTP request (anything but a WebSocket upgrade) on the
+/// WebSocket port, given its method and target as sent: the whole answer,
+/// ready to write (the connection then closes). The daemon passes the
+/// console's, so that this layer knows nothing of the application.
+pub type Http = Arc<dyn Fn(&str, &str) -> Vec<u8> + Send + Sync>;
 
 /// What a connection does with each complete message.
 pub trait Handler: Send + Sync + 'static {
