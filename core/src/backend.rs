@@ -10,6 +10,7 @@
 use crate::command::Command;
 use crate::error::Failure;
 use crate::response::Fields;
+pub use crate::session::Ticket;
 use crate::session::{Role, SessionId};
 
 /// What a backend knows about the request it runs.
@@ -25,10 +26,6 @@ pub struct Context {
     /// The session running the command.
     pub session: SessionId,
 }
-
-/// A command the backend has started and will finish later.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct Ticket(pub u32);
 
 /// How far a backend got with a command.
 #[must_use]

@@ -8,7 +8,6 @@
 
 use core::net::IpAddr;
 
-use crate::backend::Ticket;
 use crate::error::ArgError;
 use crate::parse::MAX_PASSWORD_LEN;
 use crate::table::CommandId;
@@ -55,6 +54,12 @@ pub enum Role {
 /// made with [`Session::new`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct SessionId(pub u32);
+
+/// A command the backend has started and will finish later: the session
+/// waits for it ([`Session::pending`]), the backend answered
+/// [`Step::Pending`](crate::Step::Pending) with it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Ticket(pub u32);
 
 /// One connection's login state.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

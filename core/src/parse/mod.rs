@@ -14,6 +14,7 @@ mod fields;
 mod json;
 pub(crate) mod rules;
 mod scan;
+mod validate;
 
 pub use json::MAX_JSON_DEPTH;
 pub use rules::{MAX_IDENT_LEN, MAX_NAME_LEN, MAX_PASSWORD_LEN, MAX_PATH_LEN};
