@@ -1,43 +1,48 @@
-//! Responses: one JSON object per request, written into a caller-provided
-//! fixed-capacity buffer.
-//!
-//! A response is either whole or replaced: when the backend's fields do not
-//! fit, the client gets `{"ret":-1,...,"msg":"Response too large"}`, never a
-//! truncated or invalid object. Overflow is sticky: once a write does not
-//! fit, every later write is a no-op and the response is replaced.
+//! The JSON writer under every response: a [`Sink`] over the caller's
+//! buffer that writes bytes, escaped strings (RFC 8259) and scalar values,
+//! lends itself to nested objects and arrays, and stops for good at the
+//! first write that does not fit (overflow is sticky), so that a response
+//! is whole or replaced.
 
 use core::fmt;
 
 use serde::Serialize;
 
-use crate::error::{Failure, Ret};
+use super::envelope::RET_GROWTH;
 use crate::number;
 
-/// The longest head, `{"ret":..,"cmd":..,"ts":..`.
-pub(crate) const HEAD_RESERVE: usize = r#"{"ret":-100,"cmd":255,"ts":-9223372036854775808"#.len();
-
-/// The smallest response buffer every error response fits in: the longest
-/// head, `,"msg":"`, the longest message (an unknown name of 32 bytes that
-/// are all escaped as `\u00XX`) and `"}`.
-pub const MIN_RESPONSE_CAPACITY: usize =
-    HEAD_RESERVE + r#","msg":"Unsupported command: "}"#.len() + 6 * crate::error::messages::UNKNOWN_NAME_ECHO;
+/// Room for the longest scalar value: an f64 by Ryu, and an integer's
+/// spare bytes.
+const SCRATCH: usize = 24;
 
 /// The bytes written so far and whether anything failed to fit.
-struct Sink<'b> {
-    buf: &'b mut [u8],
-    len: usize,
-    overflow: bool,
+pub(super) struct Sink<'b> {
+    pub(super) buf: &'b mut [u8],
+    pub(super) len: usize,
+    pub(super) overflow: bool,
     /// Where the response's members start (for [`Fields::fail`]).
-    origin: usize,
+    pub(super) origin: usize,
     /// The end of a failure message written by [`Fields::fail`]; once set,
     /// nothing else is written.
-    failed_at: Option<usize>,
+    pub(super) failed_at: Option<usize>,
 }
 
 /// What a nested writer hands back to its parent.
-type SinkState = (usize, bool, Option<usize>);
+pub(super) type SinkState = (usize, bool, Option<usize>);
 
-impl Sink<'_> {
+impl<'b> Sink<'b> {
+    /// A writer whose response's members start at `len`, what is already
+    /// in `buf` before it kept.
+    pub(super) fn new(buf: &'b mut [u8], len: usize) -> Self {
+        Sink {
+            buf,
+            len,
+            overflow: false,
+            origin: len,
+            failed_at: None,
+        }
+    }
+
     /// The next `n` bytes of the buffer, counted as written (the caller
     /// fills them all); `None`, and overflow, when they do not fit.
     fn room(&mut self, n: usize) -> Option<&mut [u8]> {
@@ -51,20 +56,20 @@ impl Sink<'_> {
         self.buf.get_mut(start..end)
     }
 
-    fn bytes(&mut self, b: &[u8]) {
+    pub(super) fn bytes(&mut self, b: &[u8]) {
         if let Some(dst) = self.room(b.len()) {
             dst.copy_from_slice(b);
         }
     }
 
-    fn byte(&mut self, b: u8) {
+    pub(super) fn byte(&mut self, b: u8) {
         if let Some([dst]) = self.room(1) {
             *dst = b;
         }
     }
 
     /// A JSON string made of `parts`, escaped per RFC 8259.
-    fn string(&mut self, parts: &[&str]) {
+    pub(super) fn string(&mut self, parts: &[&str]) {
         self.byte(b'"');
         for part in parts {
             self.escaped(part);
@@ -77,7 +82,7 @@ impl Sink<'_> {
     /// path, [`Sink::lead_and_room`]). On 32-bit targets, microcontrollers
     /// with little flash, always in pieces: 440 bytes less code, for more
     /// instructions per string.
-    fn quoted(&mut self, lead: Option<u8>, s: &str, trail: Option<u8>) {
+    pub(super) fn quoted(&mut self, lead: Option<u8>, s: &str, trail: Option<u8>) {
         #[cfg(target_pointer_width = "64")]
         self.quoted_in_one(lead, s, trail);
         #[cfg(not(target_pointer_width = "64"))]
@@ -157,7 +162,7 @@ impl Sink<'_> {
     /// for all of it while there is room for the most it can take (nearly
     /// always).
     #[inline]
-    fn scalar<const MAX: usize>(
+    pub(super) fn scalar<const MAX: usize>(
         &mut self,
         comma: bool,
         key: Option<&str>,
@@ -229,41 +234,11 @@ impl Sink<'_> {
         self.bytes(value);
     }
 
-    /// `{"ret":..,"cmd":..,"ts":..`: in one piece when there is room for
-    /// the longest (always, but in a buffer too small for any response).
-    fn head(&mut self, ret: Ret, cmd: u8, ts: i64) {
-        let room = self
-            .buf
-            .get_mut(self.len..)
-            .and_then(|rest| rest.first_chunk_mut::<HEAD_ROOM>());
-        let Some(dst) = room.filter(|_| !self.overflow) else {
-            self.bytes(br#"{"ret":"#);
-            self.int(i64::from(ret.code()));
-            self.bytes(br#","cmd":"#);
-            self.int(i64::from(cmd));
-            self.bytes(br#","ts":"#);
-            self.int(ts);
-            return;
-        };
-        let mut at = put_all(dst, br#"{"ret":"#);
-        at = small_int(dst, at, i32::from(ret.code()));
-        at += put_all(dst.get_mut(at..).unwrap_or_default(), br#","cmd":"#);
-        at = small_int(dst, at, i32::from(cmd));
-        at += put_all(dst.get_mut(at..).unwrap_or_default(), br#","ts":"#);
-        if let Some(digits) = dst
-            .get_mut(at..)
-            .and_then(|rest| rest.first_chunk_mut::<{ number::INT_ROOM }>())
-        {
-            at += number::write_i64(ts, digits);
-        }
-        self.len += at;
-    }
-
-    fn int(&mut self, v: i64) {
+    pub(super) fn int(&mut self, v: i64) {
         self.scalar(false, None, |d| number::write_i64(v, d));
     }
 
-    fn serialize<T: Serialize + ?Sized>(&mut self, value: &T) {
+    pub(super) fn serialize<T: Serialize + ?Sized>(&mut self, value: &T) {
         if self.overflow {
             return;
         }
@@ -275,7 +250,7 @@ impl Sink<'_> {
     }
 
     /// A writer over the same buffer, for a nested object or array.
-    fn reborrow(&mut self) -> Sink<'_> {
+    pub(super) fn reborrow(&mut self) -> Sink<'_> {
         Sink {
             buf: &mut *self.buf,
             len: self.len,
@@ -285,12 +260,12 @@ impl Sink<'_> {
         }
     }
 
-    fn state(&self) -> SinkState {
+    pub(super) fn state(&self) -> SinkState {
         (self.len, self.overflow, self.failed_at)
     }
 
     /// Takes over what a nested writer wrote.
-    fn resume(&mut self, (len, overflow, failed_at): SinkState) {
+    pub(super) fn resume(&mut self, (len, overflow, failed_at): SinkState) {
         self.len = len;
         self.overflow = overflow;
         self.failed_at = failed_at;
@@ -299,7 +274,7 @@ impl Sink<'_> {
     /// Replaces everything written since `origin` with `,"msg":"<text>"`,
     /// the text escaped and cut at a character boundary where it would not
     /// fit (leaving room for the closing `}`), then refuses further writes.
-    fn failure(&mut self, text: fmt::Arguments<'_>) {
+    pub(super) fn failure(&mut self, text: fmt::Arguments<'_>) {
         self.len = self.origin;
         self.overflow = false;
         self.bytes(br#","msg":""#);
@@ -319,6 +294,14 @@ impl Sink<'_> {
         }
         self.overflow = true;
     }
+}
+
+/// Copies `bytes` to the start of `out`; returns how many.
+pub(super) fn put_all(out: &mut [u8], bytes: &[u8]) -> usize {
+    if let Some(dst) = out.get_mut(..bytes.len()) {
+        dst.copy_from_slice(bytes);
+    }
+    bytes.len()
 }
 
 /// Escapes text into a [`Sink`] up to `limit`, whole characters (and whole
@@ -410,7 +393,7 @@ fn put_key(dst: &mut [u8], at: usize, key: &[u8]) -> Option<usize> {
 
 /// Writes `b` at `at` (the caller has made the room).
 #[inline]
-fn put(dst: &mut [u8], at: usize, b: u8) {
+pub(super) fn put(dst: &mut [u8], at: usize, b: u8) {
     if let Some(slot) = dst.get_mut(at) {
         *slot = b;
     }
@@ -456,290 +439,4 @@ fn first_escape(bytes: &[u8]) -> Option<usize> {
         return None;
     }
     rest.iter().position(|&b| needs_escape(b)).map(|i| offset + i)
-}
-
-/// Writes the members of a JSON object: the command-specific fields of a
-/// response, or the members of a nested object.
-///
-/// Keys and string values are escaped; numbers are written exactly (floats
-/// in their shortest round-trip form, non-finite ones as `null`).
-pub struct Fields<'b> {
-    sink: Sink<'b>,
-    first: bool,
-}
-
-/// Writes the elements of a JSON array.
-pub struct Items<'b> {
-    sink: Sink<'b>,
-    first: bool,
-}
-
-macro_rules! value_writers {
-    ($ty:ident, $lead:ident, $scalar:ident ($($key:ident: &str)?)) => {
-        impl $ty<'_> {
-            /// A string.
-            #[inline]
-            pub fn str(&mut self, $($key: &str,)? v: &str) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.quoted(None, v, None);
-                self
-            }
-            /// A signed integer.
-            #[inline]
-            pub fn i64(&mut self, $($key: &str,)? v: i64) -> &mut Self {
-                self.$scalar($($key,)? |d| number::write_i64(v, d));
-                self
-            }
-            /// An unsigned integer.
-            #[inline]
-            pub fn u64(&mut self, $($key: &str,)? v: u64) -> &mut Self {
-                self.$scalar($($key,)? |d| number::write_u64(v, d));
-                self
-            }
-            /// A double; NaN and infinities are written as `null`.
-            #[inline]
-            pub fn f64(&mut self, $($key: &str,)? v: f64) -> &mut Self {
-                self.$scalar($($key,)? |d| write_f64(v, d));
-                self
-            }
-            /// A float; NaN and infinities are written as `null`.
-            #[inline]
-            pub fn f32(&mut self, $($key: &str,)? v: f32) -> &mut Self {
-                self.$scalar($($key,)? |d| write_f32(v, d));
-                self
-            }
-            /// A boolean.
-            #[inline]
-            pub fn bool(&mut self, $($key: &str,)? v: bool) -> &mut Self {
-                self.$scalar($($key,)? |d: &mut [u8; 5]| put_all(d, if v { b"true" } else { b"false" }));
-                self
-            }
-            /// `null`.
-            #[inline]
-            pub fn null(&mut self $(, $key: &str)?) -> &mut Self {
-                self.$scalar($($key,)? |d: &mut [u8; 4]| put_all(d, b"null"));
-                self
-            }
-            /// Any serde-serialisable value, written by serde-json-core.
-            pub fn serialize<T: Serialize + ?Sized>(&mut self, $($key: &str,)? v: &T) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.serialize(v);
-                self
-            }
-            /// A nested object whose members `f` writes.
-            pub fn object(&mut self, $($key: &str,)? f: impl FnOnce(&mut Fields<'_>)) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.byte(b'{');
-                let mut inner = Fields { sink: self.sink.reborrow(), first: true };
-                f(&mut inner);
-                let state = inner.sink.state();
-                self.sink.resume(state);
-                self.sink.byte(b'}');
-                self
-            }
-            /// A nested array whose elements `f` writes.
-            pub fn array(&mut self, $($key: &str,)? f: impl FnOnce(&mut Items<'_>)) -> &mut Self {
-                self.$lead($($key)?);
-                self.sink.byte(b'[');
-                let mut inner = Items { sink: self.sink.reborrow(), first: true };
-                f(&mut inner);
-                let state = inner.sink.state();
-                self.sink.resume(state);
-                self.sink.byte(b']');
-                self
-            }
-        }
-    };
-}
-
-value_writers!(Fields, member, field(key: &str));
-value_writers!(Items, element, item());
-
-/// Shortest round-trip text (`0.1`, `-10.0`, `1e30`: [`crate::number`],
-/// the same text as Ryu), `-0` written `0`; JSON has no NaN or infinity,
-/// so those are `null`.
-fn write_f32(v: f32, out: &mut [u8; number::MAX_LEN]) -> usize {
-    if v.is_finite() {
-        // `+ 0.0` turns -0 into 0 (IEEE 754: -0 + 0 = +0), which is how
-        // DESIGN.md writes it.
-        number::write_f32(v + 0.0, out)
-    } else {
-        put_all(out, b"null")
-    }
-}
-
-/// Shortest round-trip text by Ryu (`1.5`, `-10.0`, `1e300`), `-0`
-/// written `0`, or `null`.
-/// Only host backends write doubles; a firmware that never does links
-/// none of Ryu.
-fn write_f64(v: f64, out: &mut [u8; 24]) -> usize {
-    if v.is_finite() {
-        put_all(out, ryu::Buffer::new().format_finite(v + 0.0).as_bytes())
-    } else {
-        put_all(out, b"null")
-    }
-}
-
-/// Copies `bytes` to the start of `out`; returns how many.
-fn put_all(out: &mut [u8], bytes: &[u8]) -> usize {
-    if let Some(dst) = out.get_mut(..bytes.len()) {
-        dst.copy_from_slice(bytes);
-    }
-    bytes.len()
-}
-
-impl<'b> Fields<'b> {
-    /// A writer for the members of the response to `cmd` at `ts`, written
-    /// into `buf` after the head `{"ret":0,"cmd":..,"ts":..`, which it
-    /// writes first ([`finish`] corrects `ret` if the command fails), so
-    /// that a successful response is never moved.
-    pub(crate) fn after_head(buf: &'b mut [u8], cmd: u8, ts: i64) -> Self {
-        let mut sink = Sink {
-            buf,
-            len: 0,
-            overflow: false,
-            origin: 0,
-            failed_at: None,
-        };
-        sink.head(Ret::Ok, cmd, ts);
-        sink.origin = sink.len;
-        Fields { sink, first: false }
-    }
-
-    /// Fails the command with `ret` and a message written whole into the
-    /// response buffer (cut at a character boundary only if the buffer
-    /// cannot hold it), discarding every field written so far; return the
-    /// result from [`crate::Backend::execute`]. Unlike [`Failure::new`],
-    /// the message is not limited to
-    /// [`crate::error::FAILURE_MSG_CAPACITY`] bytes.
-    pub fn fail(&mut self, ret: Ret, msg: fmt::Arguments<'_>) -> Failure {
-        self.sink.failure(msg);
-        Failure::written(ret)
-    }
-
-    /// The end of the failure message [`Fields::fail`] wrote, if it did.
-    pub(crate) fn failure_end(&self) -> Option<usize> {
-        self.sink.failed_at
-    }
-
-    fn member(&mut self, key: &str) {
-        let lead = (!core::mem::take(&mut self.first)).then_some(b',');
-        self.sink.quoted(lead, key, Some(b':'));
-    }
-
-    #[inline]
-    fn field<const MAX: usize>(&mut self, key: &str, value: impl FnOnce(&mut [u8; MAX]) -> usize) {
-        let comma = !core::mem::take(&mut self.first);
-        self.sink.scalar(comma, Some(key), value);
-    }
-
-    /// Whether everything written so far fitted.
-    pub fn fits(&self) -> bool {
-        !self.sink.overflow
-    }
-
-    /// The end of what was written, or `None` if something did not fit.
-    pub(crate) fn end(&self) -> Option<usize> {
-        self.fits().then_some(self.sink.len)
-    }
-}
-
-impl Items<'_> {
-    fn element(&mut self) {
-        if !core::mem::take(&mut self.first) {
-            self.sink.byte(b',');
-        }
-    }
-
-    #[inline]
-    fn item<const MAX: usize>(&mut self, value: impl FnOnce(&mut [u8; MAX]) -> usize) {
-        let comma = !core::mem::take(&mut self.first);
-        self.sink.scalar(comma, None, value);
-    }
-}
-
-/// Writes `{"ret":..,"cmd":..,"ts":..` and returns the head's length, or
-/// `None` if `buf` is too short.
-fn head(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64) -> Option<usize> {
-    let mut s = Sink {
-        buf,
-        len: 0,
-        overflow: false,
-        origin: 0,
-        failed_at: None,
-    };
-    s.head(ret, cmd, ts);
-    (!s.overflow).then_some(s.len)
-}
-
-/// Room for the longest scalar value: an f64 by Ryu, and an integer's
-/// spare bytes.
-const SCRATCH: usize = 24;
-
-/// Room for the longest head and the spare bytes of its digit stores.
-const HEAD_ROOM: usize = HEAD_RESERVE + 8;
-
-/// Writes `v` (-999..=999) at `at`; returns where it ends.
-#[inline]
-fn small_int(dst: &mut [u8], at: usize, v: i32) -> usize {
-    put(dst, at, b'-');
-    let at = at + usize::from(v < 0);
-    let v = v.unsigned_abs();
-    let hundreds = v / 100;
-    put(dst, at, b'0' + (hundreds % 10) as u8);
-    let at = at + usize::from(hundreds > 0);
-    let [tens, units] = number::pair(v % 100);
-    put(dst, at, tens);
-    let at = at + usize::from(v >= 10);
-    put(dst, at, units);
-    at + 1
-}
-
-/// How much longer the head gets when `ret` 0 is rewritten as a failure's
-/// (`-100` at most).
-const RET_GROWTH: usize = 3;
-
-/// Completes a response whose head [`Fields::after_head`] wrote with `ret`
-/// 0 and whose members (the command's fields, or the `msg` of
-/// [`Fields::fail`]) end at `body_end`: closes the object, after rewriting
-/// the head with `ret` if that is not 0. Returns the response length, or
-/// `None` if it does not fit.
-pub(crate) fn finish(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, body_end: usize) -> Option<usize> {
-    if ret == Ret::Ok {
-        *buf.get_mut(body_end)? = b'}';
-        return Some(body_end + 1);
-    }
-    // A failure with a message written in place: the head grows by up to
-    // RET_GROWTH bytes, so the message moves right (rare, and short).
-    let mut old = [0u8; HEAD_RESERVE];
-    let old_len = head(&mut old, Ret::Ok, cmd, ts)?;
-    let mut new = [0u8; HEAD_RESERVE];
-    let new_len = head(&mut new, ret, cmd, ts)?;
-    let shift = new_len.checked_sub(old_len)?;
-    let end = body_end + shift;
-    buf.get(end)?;
-    for i in (old_len..body_end).rev() {
-        let b = *buf.get(i)?;
-        *buf.get_mut(i + shift)? = b;
-    }
-    buf.get_mut(..new_len)?.copy_from_slice(new.get(..new_len)?);
-    *buf.get_mut(end)? = b'}';
-    Some(end + 1)
-}
-
-/// Writes a whole error response `{"ret":..,"cmd":..,"ts":..,"msg":".."}`
-/// whose message is `parts` concatenated. `None` if `buf` is too short.
-pub(crate) fn write_error(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, parts: &[&str]) -> Option<usize> {
-    let len = head(buf, ret, cmd, ts)?;
-    let mut s = Sink {
-        buf,
-        len,
-        overflow: false,
-        origin: len,
-        failed_at: None,
-    };
-    s.bytes(br#","msg":"#);
-    s.string(parts);
-    s.byte(b'}');
-    (!s.overflow).then_some(s.len)
 }
