@@ -1,6 +1,8 @@
 //! lluav-core on the target ISA (Cortex-M7 under QEMU): parsing, gates,
-//! responses and the close policy through the core's public API, and the
-//! stack high-water mark of the frame-handling path.
+//! responses and the close policy through the core's public API, the
+//! WebSocket rules the MCU adapter takes from the core (32-bit code paths:
+//! unmasking byte by byte), and the stack high-water mark of the
+//! frame-handling path.
 #![no_std]
 #![no_main]
 
@@ -266,6 +268,56 @@ mod tests {
                 == Outcome::Close(CloseCode::InvalidPayload)
         );
         assert!(s.handle(&mut session, Message::Oversized, &mut out) == Outcome::Close(CloseCode::TooBig));
+    }
+
+    #[test]
+    fn frames_unmask_in_pieces_and_lengths_must_be_minimal() {
+        use lluav_core::websocket::{parse_header, unmask};
+        // RFC 6455, section 5.7: "Hello", masked with 37 fa 21 3d, in
+        // pieces of every size.
+        let mask = [0x37, 0xfa, 0x21, 0x3d];
+        for piece in 1..=5 {
+            let mut wire = *b"\x7f\x9f\x4d\x51\x58";
+            let mut at = 0;
+            for chunk in wire.chunks_mut(piece) {
+                unmask(chunk, mask, at);
+                at += chunk.len();
+            }
+            assert_eq!(&wire, b"Hello");
+        }
+        let header = |b: &[u8]| parse_header(b).map(|h| h.map(|h| h.len));
+        assert!(header(&[0x81, 0xfe, 0, 126, 1, 2, 3, 4]) == Ok(Some(126)));
+        assert!(header(&[0x81, 0xfe, 0, 3, 1, 2, 3, 4]) == Err(CloseCode::ProtocolError));
+        assert!(header(&[0x81, 0xff, 0, 0, 0, 0, 0, 0, 0xff, 0xff]) == Err(CloseCode::ProtocolError));
+    }
+
+    #[test]
+    fn the_upgrade_check_and_policy_judge_a_request() {
+        use lluav_core::websocket::handshake::{Rejection, Request, judge};
+        use lluav_core::websocket::policy::{Forbidden, Policy};
+        let policy: Policy<'_> = Policy {
+            local: core::net::IpAddr::V4(core::net::Ipv4Addr::new(10, 53, 0, 1)),
+            tls: false,
+            allowed_origins: &[],
+            allowed_hosts: &[],
+        };
+        macro_rules! upgrade {
+            ($host:literal) => {
+                concat!(
+                    "GET / HTTP/1.1\r\nHost: ",
+                    $host,
+                    "\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n",
+                    "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+                )
+                .as_bytes()
+            };
+        }
+        assert!(matches!(
+            judge(upgrade!("10.53.0.1:53001"), &policy),
+            Ok(Request::Upgrade(_))
+        ));
+        let rebound = judge(upgrade!("evil.example:53001"), &policy);
+        assert!(rebound == Err(Rejection::Forbidden(Forbidden::Host)));
     }
 
     #[test]
