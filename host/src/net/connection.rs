@@ -20,7 +20,7 @@ use std::sync::Arc;
 use std::task::Poll;
 
 use futures_util::FutureExt;
-use lluav_core::websocket::Opcode;
+use lluav_core::websocket::{Opcode, close_reply};
 use lluav_core::{CloseCode, Message, Outcome};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{Notify, watch};
@@ -90,7 +90,7 @@ enum Flow {
     /// Close with this code and reason, wait for the peer's close, stop.
     Close(CloseCode, &'static str),
     /// The peer sent its close: answer it with this code and stop.
-    Answer(Option<u16>),
+    Answer(u16),
 }
 
 /// The one timer of a session: the idle timeout, and the login deadline
@@ -403,7 +403,7 @@ where
                 self.io.queued += 1;
                 self.written().await
             }
-            Received::Control(Opcode::Close) => peer_close(self.io.reader.control()),
+            Received::Control(Opcode::Close) => Flow::Answer(close_reply(self.io.reader.control())),
             Received::Control(_) => Flow::Continue,
             Received::Fail(code) => {
                 debug!(peer = %self.peer, code = code.code(), "WebSocket protocol violation");
@@ -499,28 +499,10 @@ where
                 let _ = timeout(CLOSE_HANDSHAKE_TIMEOUT, handshake).await;
             }
             Flow::Answer(code) => {
-                let payload = code.map(u16::to_be_bytes);
-                frame::write(&mut io.outbox, Opcode::Close, payload.as_ref().map_or(&[], |p| p));
+                frame::write(&mut io.outbox, Opcode::Close, &code.to_be_bytes());
                 let _ = timeout(CLOSE_HANDSHAKE_TIMEOUT, io.flush(&limits)).await;
             }
         }
         io.linger().await;
     }
-}
-
-/// How to answer the peer's close frame with `payload` (RFC 6455, section
-/// 5.5.1): echo its code; a malformed one is answered with 1002, a reason
-/// that is not UTF-8 with 1007.
-fn peer_close(payload: &[u8]) -> Flow {
-    let [hi, lo, reason @ ..] = payload else {
-        return Flow::Answer(payload.first().map(|_| CloseCode::ProtocolError.code()));
-    };
-    let code = u16::from_be_bytes([*hi, *lo]);
-    if !matches!(code, 1000..=1003 | 1007..=1014 | 3000..=4999) {
-        return Flow::Answer(Some(CloseCode::ProtocolError.code()));
-    }
-    if std::str::from_utf8(reason).is_err() {
-        return Flow::Answer(Some(CloseCode::InvalidPayload.code()));
-    }
-    Flow::Answer(Some(code))
 }

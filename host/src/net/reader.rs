@@ -3,12 +3,14 @@
 //!
 //! Frames are unmasked in place and a message is assembled where it
 //! arrived: a message in one frame is never copied, the payloads of a
-//! fragmented one are moved down over the headers between them. Text is
-//! checked for UTF-8 as each piece arrives, so a message that can never be
-//! valid fails at its first bad byte, before the rest is read (RFC 6455,
-//! section 8.1: "fail fast"). The last piece is left to the handler, which
-//! checks every complete message anyway ([`Message::text`]): a message that
-//! arrives whole is checked once, not twice.
+//! fragmented one are moved down over the headers between them. What a
+//! frame may be and how frames make a message are the core's rules
+//! ([`lluav_core::websocket`]: its header checks and [`Fragments`], the
+//! MCU's too): text is checked for UTF-8 as each piece arrives, so a
+//! message that can never be valid fails at its first bad byte, before the
+//! rest is read (RFC 6455, section 8.1: "fail fast"), and a whole message
+//! is left to the handler, which checks every message anyway
+//! ([`Message::text`]): a message that arrives whole is checked once.
 //!
 //! The buffer is held only while bytes are waiting to be handled:
 //! [`Reader::release`] gives it back ([`buffers::recycle`]), so an idle
@@ -16,7 +18,7 @@
 
 use std::ops::Range;
 
-use lluav_core::websocket::{self, Header, Opcode, Utf8, Verdict};
+use lluav_core::websocket::{self, Fragments, Header, Interrupt, Opcode, Verdict};
 use lluav_core::{CloseCode, Message};
 
 use super::buffers;
@@ -69,18 +71,16 @@ enum Step {
 #[derive(Debug)]
 pub struct Reader {
     /// Bytes read and not yet consumed; the message being assembled is in
-    /// `buf[start..start + len]`, the unparsed bytes in `buf[pos..]`.
+    /// `buf[start..start + fragments.received()]`, the unparsed bytes in
+    /// `buf[pos..]`.
     buf: Vec<u8>,
     pos: usize,
     start: usize,
-    len: usize,
     /// Largest message accepted.
     limit: usize,
     frame: Option<Current>,
-    /// The opcode of the message being received, once its first frame came.
-    kind: Option<Opcode>,
-    /// How far the text message so far is known to be valid.
-    utf8: Utf8,
+    /// The message being received, by the core's rules.
+    fragments: Fragments,
     control: Range<usize>,
     /// The last event handed out the message; forget it on the next call.
     delivered: bool,
@@ -96,11 +96,9 @@ impl Reader {
             buf: leftover,
             pos: 0,
             start: 0,
-            len: 0,
             limit,
             frame: None,
-            kind: None,
-            utf8: Utf8::new(),
+            fragments: Fragments::new(),
             control: 0..0,
             delivered: false,
             discarding: false,
@@ -110,14 +108,9 @@ impl Reader {
     /// The message of the last [`Event::Message`] (or, after
     /// [`Event::InvalidText`], the text so far).
     pub fn message(&self) -> Message<'_> {
-        let body = self
-            .buf
-            .get(self.start..self.start + self.len)
-            .unwrap_or_default();
-        match self.kind {
-            Some(Opcode::Binary) => Message::Binary(body),
-            _ => Message::Text(body),
-        }
+        let end = self.start + self.fragments.received();
+        self.fragments
+            .message(self.buf.get(self.start..end).unwrap_or_default())
     }
 
     /// The payload of the control frame of the last [`Event::Control`].
@@ -129,8 +122,7 @@ impl Reader {
     /// our close frame only the peer's close matters.
     pub fn discard(&mut self) {
         self.discarding = true;
-        self.kind = None;
-        self.len = 0;
+        self.fragments.reset();
     }
 
     /// The buffer to append the socket's next bytes to, with room for
@@ -181,10 +173,9 @@ impl Reader {
     /// Forgets a message that was handed out, and bytes all consumed.
     fn settle(&mut self) {
         if std::mem::take(&mut self.delivered) {
-            self.kind = None;
-            self.len = 0;
+            self.fragments.reset();
         }
-        if self.kind.is_none() && self.pos == self.buf.len() {
+        if !self.fragments.in_progress() && self.pos == self.buf.len() {
             self.buf.clear();
             self.pos = 0;
             self.start = 0;
@@ -194,8 +185,8 @@ impl Reader {
     /// Moves the message being assembled and the unparsed bytes to the
     /// front of the buffer.
     fn compact(&mut self) {
-        let (start, len) = if self.kind.is_some() {
-            (self.start, self.len)
+        let (start, len) = if self.fragments.in_progress() {
+            (self.start, self.fragments.received())
         } else {
             (self.pos, 0)
         };
@@ -218,20 +209,14 @@ impl Reader {
             return self.control_frame(&header);
         }
         if !self.discarding {
-            match (header.opcode, self.kind) {
-                (Opcode::Continuation, Some(_)) => {}
-                (Opcode::Continuation, None) | (_, Some(_)) => {
-                    return Step::Event(Event::Fail(CloseCode::ProtocolError));
-                }
-                (opcode, None) => {
-                    self.kind = Some(opcode);
-                    self.start = self.pos + header.header_len;
-                    self.len = 0;
-                    self.utf8 = Utf8::new();
-                }
+            match self.fragments.begin(&header, self.limit) {
+                Ok(()) => {}
+                Err(Interrupt::Fail(code)) => return Step::Event(Event::Fail(code)),
+                Err(Interrupt::Oversized) => return Step::Event(Event::Oversized),
             }
-            if header.len > (self.limit - self.len) as u64 {
-                return Step::Event(Event::Oversized);
+            if header.opcode != Opcode::Continuation {
+                // The first frame of a message: it is assembled from here.
+                self.start = self.pos + header.header_len;
             }
         }
         self.pos += header.header_len;
@@ -259,26 +244,25 @@ impl Reader {
         let available = self.buf.len() - self.pos;
         let take = usize::try_from(header.len - current.got).map_or(available, |left| left.min(available));
         let from = self.pos;
-        if !self.discarding {
-            if let Some(piece) = self.buf.get_mut(from..from + take) {
-                websocket::unmask(piece, header.mask, (current.got % 4) as usize);
-            }
-            let to = self.start + self.len;
-            if to != from {
-                self.buf.copy_within(from..from + take, to);
-            }
-            self.len += take;
-        }
+        let offset = (current.got % 4) as usize;
         self.pos += take;
         current.got += take as u64;
         let complete = current.got == header.len;
         self.frame = (!complete).then_some(current);
-        // A complete message is checked whole by the handler (the core's
-        // `Message::text`, the one close policy); what is checked here is
-        // the part of a message that has arrived, to fail it early.
-        let whole = complete && header.fin;
-        if self.kind == Some(Opcode::Text) && !whole && self.invalid_text() {
-            return Step::Event(Event::InvalidText);
+        if !self.discarding {
+            if let Some(piece) = self.buf.get_mut(from..from + take) {
+                websocket::unmask(piece, header.mask, offset);
+            }
+            let to = self.start + self.fragments.received();
+            if to != from {
+                self.buf.copy_within(from..from + take, to);
+            }
+            // What has arrived of a text message is checked, to fail it
+            // early; a whole one is left to the handler (`Message::text`).
+            let message = self.buf.get(self.start..to + take).unwrap_or_default();
+            if self.fragments.extend(message, complete && header.fin) == Verdict::Invalid {
+                return Step::Event(Event::InvalidText);
+            }
         }
         match (complete, header.fin && !self.discarding) {
             (false, _) => Step::More,
@@ -288,16 +272,6 @@ impl Reader {
                 Step::Event(Event::Message)
             }
         }
-    }
-
-    /// Whether the text so far can never become valid UTF-8; checks what
-    /// was added since the last call.
-    fn invalid_text(&mut self) -> bool {
-        let text = self
-            .buf
-            .get(self.start..self.start + self.len)
-            .unwrap_or_default();
-        self.utf8.extend(text) == Verdict::Invalid
     }
 }
 
