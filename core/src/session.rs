@@ -6,30 +6,11 @@
 //! password, the two special login values, lock mode and the [`Throttle`].
 //! Passwords are compared in constant time.
 
-use core::net::IpAddr;
-
 use crate::error::ArgError;
 use crate::parse::MAX_PASSWORD_LEN;
 use crate::table::CommandId;
-pub use crate::throttle::MAX_WRONG_PASSWORDS;
 use crate::throttle::{DefaultSlots, Slots, Throttle};
-
-/// Who a session is, as login throttling counts wrong passwords.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Peer {
-    /// The client's network address (IPv6 counts by its /64 prefix).
-    Address(IpAddr),
-    /// An opaque per-client key that an adapter derives from a name it
-    /// trusts to be per-client (an uplink's client id, hashed with a key
-    /// of its own so that no client can pick another's).
-    Client([u8; 16]),
-}
-
-impl From<IpAddr> for Peer {
-    fn from(addr: IpAddr) -> Self {
-        Peer::Address(addr)
-    }
-}
+pub use crate::throttle::{MAX_WRONG_PASSWORDS, Peer};
 
 /// The login value that grants admin, unless configured otherwise.
 pub const DEFAULT_ADMIN_PASSWORD: &str = "1025";

@@ -24,7 +24,23 @@
 
 use core::net::IpAddr;
 
-use crate::session::Peer;
+/// Who a session is, as login throttling counts wrong passwords (each
+/// [`Session`](crate::Session) holds its own).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Peer {
+    /// The client's network address (IPv6 counts by its /64 prefix).
+    Address(IpAddr),
+    /// An opaque per-client key that an adapter derives from a name it
+    /// trusts to be per-client (an uplink's client id, hashed with a key
+    /// of its own so that no client can pick another's).
+    Client([u8; 16]),
+}
+
+impl From<IpAddr> for Peer {
+    fn from(addr: IpAddr) -> Self {
+        Peer::Address(addr)
+    }
+}
 
 /// Wrong passwords in a row after which a session is closed (1008) and a
 /// client is locked out.
