@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use lluav_core::throttle::{DEFAULT_MAX_LOCKOUT_MS, Slot, Throttle};
-use lluav_core::{Auth, AuthError, Clock, Message, Outcome, Server, Session};
+use lluav_core::{Auth, AuthError, Clock, Failure, Message, Outcome, Server, Session};
 use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
 use tracing::{error, info, warn};
@@ -28,7 +28,7 @@ use crate::notify::{self, Counted, Link, Notifier, Status};
 use crate::onboard::Onboard;
 use crate::recent_log::RecentLog;
 use crate::sim::{SimConfig, Simulator};
-use crate::vehicle::Vehicle;
+use crate::vehicle::{Vehicle, Wait};
 
 /// How often the vehicle is advanced.
 pub const TICK: Duration = Duration::from_millis(50);
@@ -123,12 +123,25 @@ impl<V: Vehicle> Handler for Protocol<V> {
         message: Message<'o>,
         out: &'o mut [u8],
     ) -> Outcome<'o> {
-        let mut outcome = self.locked(|server| server.handle(session, message, out));
+        let (mut outcome, mut wait) = self.locked(|server| {
+            let outcome = server.handle(session, message, out);
+            let wait = take_wait(server, &outcome);
+            (outcome, wait)
+        });
         // The vehicle waits for something outside (an autopilot's ACK):
-        // wait with the lock released, so other sessions go on.
+        // wait with the lock released, so other sessions go on; the reply
+        // goes back in and out as the response in one critical section.
         while let Outcome::Pending(ticket, buf) = outcome {
-            self.locked(|server| server.backend_mut().ready(ticket)).await;
-            outcome = self.locked(|server| server.resume(session, buf));
+            let reply = match wait.take() {
+                Some(wait) => wait.await,
+                None => Box::new(|_: &mut lluav_core::Fields<'_>| Err(Failure::unhandled())),
+            };
+            (outcome, wait) = self.locked(|server| {
+                server.backend_mut().arrive(ticket, reply);
+                let outcome = server.resume(session, buf);
+                let wait = take_wait(server, &outcome);
+                (outcome, wait)
+            });
         }
         outcome
     }
@@ -139,6 +152,14 @@ impl<V: Vehicle> Handler for Protocol<V> {
 
     fn closed(&self, session: Session) {
         self.locked(|server| server.close(&session));
+    }
+}
+
+/// The wait of the command `outcome` left pending, if it did.
+fn take_wait<V: Vehicle>(server: &mut OnboardServer<V>, outcome: &Outcome<'_>) -> Option<Wait> {
+    match outcome {
+        Outcome::Pending(ticket, _) => server.backend_mut().take_wait(*ticket),
+        _ => None,
     }
 }
 
@@ -262,7 +283,7 @@ impl Daemon<MavlinkVehicle> {
             dir: settings.data_dir.clone(),
             source,
         })?;
-        let vehicle = MavlinkVehicle::open(MavlinkConfig::new(address))
+        let vehicle = MavlinkVehicle::open(MavlinkConfig::new(address), SystemClock)
             .await
             .map_err(|source| DaemonError::Mavlink {
                 address: address.to_owned(),
@@ -352,7 +373,12 @@ impl<V: Vehicle> Daemon<V> {
         if let Some(task) = keep_alive {
             task.abort();
         }
-        let flushed = tokio::task::spawn_blocking(move || lock(&server).backend_mut().flush()).await;
+        let flushed = tokio::task::spawn_blocking(move || {
+            let mut server = lock(&server);
+            server.backend_mut().stop();
+            server.backend_mut().flush()
+        })
+        .await;
         match flushed {
             Ok(Ok(())) => {
                 info!("state flushed; bye");
@@ -429,5 +455,125 @@ async fn tick<V: Vehicle>(server: Shared<V>) {
         let now = Instant::now();
         lock(&server).backend_mut().tick(now - last);
         last = now;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    use lluav_core::{Command, Context, Fields, SessionId};
+    use tokio::sync::oneshot;
+
+    use super::*;
+    use crate::files::Files;
+    use crate::vehicle::{Ned, Progress, Reply, Snapshot};
+
+    /// A vehicle whose `takeoff` waits for the test to release it, and
+    /// counts how often it is asked anything.
+    struct Gated {
+        release: Option<oneshot::Receiver<()>>,
+        executed: Arc<AtomicUsize>,
+    }
+
+    impl Vehicle for Gated {
+        fn armed(&self) -> bool {
+            false
+        }
+        fn execute(
+            &mut self,
+            cmd: &Command<'_>,
+            _: &Context,
+            _: &Files,
+            out: &mut Fields<'_>,
+        ) -> Result<Progress, Failure> {
+            self.executed.fetch_add(1, Ordering::SeqCst);
+            if cmd.id() != lluav_core::CommandId::Takeoff {
+                out.str("fsm", "ground");
+                return Ok(Progress::Done);
+            }
+            let release = self.release.take().expect("one takeoff");
+            Ok(Progress::Waiting(Box::pin(async move {
+                let _ = release.await;
+                let reply: Reply = Box::new(|out: &mut Fields<'_>| {
+                    out.str("fsm", "takeoff");
+                    Ok(())
+                });
+                reply
+            })))
+        }
+        fn write_state(&self, _: &Context, state: &mut Fields<'_>) {
+            state.bool("armed", false).str("fsm", "ground");
+        }
+        fn snapshot(&self) -> Snapshot {
+            Snapshot {
+                backend: "gated",
+                time_s: 0.0,
+                position: Ned::default(),
+                yaw: 0.0,
+                fsm: "ground",
+                distance_m: 0.0,
+            }
+        }
+        fn tick(&mut self, _: Duration) {}
+        fn session_closed(&mut self, _: SessionId) {}
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_waiting_command_is_answered_with_its_reply_and_other_sessions_go_on_meanwhile() {
+        let dir = tempfile::tempdir().unwrap();
+        let companion = Companion::open(CompanionConfig {
+            data_dir: dir.path().to_path_buf(),
+            log: RecentLog::new(8),
+            password_pinned: false,
+        })
+        .unwrap();
+        let (release, released) = oneshot::channel();
+        let executed = Arc::new(AtomicUsize::new(0));
+        let vehicle = Gated {
+            release: Some(released),
+            executed: Arc::clone(&executed),
+        };
+        let server = Server::new(
+            Onboard::new(companion, vehicle),
+            SystemClock,
+            Auth::new(None).unwrap().with_throttle(
+                Throttle::new(30_000, 900_000).with_table(vec![Slot::EMPTY; 4].into_boxed_slice()),
+            ),
+        );
+        let protocol = Arc::new(Protocol::new(Arc::new(Mutex::new(server))));
+        let peer: SocketAddr = "127.0.0.1:9".parse().unwrap();
+        let waiting = {
+            let protocol = Arc::clone(&protocol);
+            tokio::spawn(async move {
+                let mut session = protocol.session(peer);
+                let mut out = vec![0u8; 1024];
+                let reply = protocol
+                    .handle(&mut session, Message::Text(b"takeoff"), &mut out)
+                    .await;
+                reply.reply().map(str::to_owned)
+            })
+        };
+        while executed.load(Ordering::SeqCst) == 0 {
+            tokio::task::yield_now().await;
+        }
+        let mut other = protocol.session(peer);
+        let mut out = vec![0u8; 1024];
+        let state = protocol
+            .handle(&mut other, Message::Text(b"land"), &mut out)
+            .await;
+        assert!(state.reply().unwrap().contains(r#""fsm":"ground""#), "{state:?}");
+        assert!(!waiting.is_finished());
+        release.send(()).unwrap();
+        let answer = waiting.await.unwrap().unwrap();
+        assert!(
+            answer.starts_with(r#"{"ret":0,"cmd":18,"#) && answer.ends_with(r#""fsm":"takeoff"}"#),
+            "{answer}"
+        );
+        assert_eq!(
+            executed.load(Ordering::SeqCst),
+            2,
+            "the reply is not asked of the vehicle again"
+        );
     }
 }

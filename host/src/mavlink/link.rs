@@ -2,15 +2,19 @@
 //!
 //! One [`Link`] per daemon: the connection (reconnected when a TCP or
 //! serial link fails), a broadcast feed of every message received (the
-//! protocols of [`super::protocol`] wait on it), and the state the link
-//! task and the commands share ([`Shared`]). Four tasks run for the
-//! daemon's lifetime: the reader (cache, counts, mission progress, the
-//! feed), our own `HEARTBEAT` at 1 Hz as an onboard computer, the setpoint
-//! stream, and, each time the link comes up, the message rate requests.
+//! protocols of [`super::protocol`] wait on it), and what lluavd knows of
+//! the autopilot ([`Known`], changed only through its methods, under
+//! [`Link::with`]). Tasks run until [`Link::stop`]: the reader (cache,
+//! counts, mission progress, the feed), our own `HEARTBEAT` at 1 Hz as an
+//! onboard computer, the setpoint stream, each time the link comes up the
+//! message rate requests, and the commands waiting for the autopilot
+//! ([`Link::spawn`]). Time is the daemon's clock, the one requests are
+//! stamped with.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
+use std::future::Future;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use ::mavlink::dialects::ardupilotmega::{
     HEARTBEAT_DATA, MavAutopilot, MavCmd, MavFrame, MavMessage, MavModeFlag, MavState, MavType,
@@ -18,14 +22,15 @@ use ::mavlink::dialects::ardupilotmega::{
 };
 use ::mavlink::error::MessageReadError;
 use ::mavlink::{AsyncConnection, AsyncMavConnection as _, MavHeader};
-use lluav_core::{Pose, SessionId};
+use lluav_core::Clock;
+use tokio::runtime::Handle;
 use tokio::sync::broadcast;
+use tokio::task::{AbortHandle, JoinHandle};
 use tokio::time::{Instant, MissedTickBehavior};
 
 use super::error::MavError;
-use super::mission::Missions;
 use super::protocol::{self, Incoming, Port, Target, Timing};
-use super::telemetry::Telemetry;
+use super::state::Known;
 
 /// `MAV_COMP_ID_ONBOARD_COMPUTER`: lluavd's component id.
 pub const OWN_COMPONENT: u8 = 191;
@@ -63,36 +68,22 @@ const AUTOPILOT_VERSION_ID: f32 = 148.0;
 
 type Conn = AsyncConnection<MavMessage>;
 
-/// The setpoint being streamed and the sessions that set it.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Stream {
-    /// The setpoint.
-    pub pose: Pose,
-    /// Every session that set a setpoint since streaming started.
-    pub owners: HashSet<SessionId>,
-}
-
-/// What the link task and the commands share.
-#[derive(Debug, Default)]
-pub struct Shared {
-    /// The autopilot's telemetry.
-    pub tel: Telemetry,
-    /// The setpoint stream, while one is active.
-    pub stream: Option<Stream>,
-    /// Missions and their runs.
-    pub missions: Missions,
-}
+/// The daemon's clock.
+pub type SharedClock = Arc<dyn Clock + Send + Sync>;
 
 /// The link to the autopilot.
 pub struct Link {
     address: String,
     conn: Mutex<Option<Arc<Conn>>>,
     feed: broadcast::Sender<Arc<Incoming>>,
-    shared: Mutex<Shared>,
+    known: Mutex<Known>,
     locks: Mutex<HashMap<u32, Arc<tokio::sync::Mutex<()>>>>,
-    /// The protocols' timeouts and retries.
-    pub timing: Timing,
+    timing: Timing,
     own_system: Option<u8>,
+    clock: SharedClock,
+    runtime: Handle,
+    /// Every task the link runs, for [`Link::stop`].
+    tasks: Mutex<Vec<AbortHandle>>,
     started: Instant,
 }
 
@@ -100,14 +91,6 @@ fn unpoison<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     // Nothing here panics while holding these locks; if something did,
     // the cache is still the best there is.
     m.lock().unwrap_or_else(PoisonError::into_inner)
-}
-
-/// Now, in milliseconds since the Unix epoch (the link task's own clock,
-/// the same the daemon stamps requests with).
-fn unix_ms() -> i64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
 }
 
 async fn connect(address: &str) -> std::io::Result<Conn> {
@@ -119,37 +102,75 @@ async fn connect(address: &str) -> std::io::Result<Conn> {
 
 impl Link {
     /// Connects to `address` (the `mavlink` crate's syntax) and starts
-    /// the link's tasks on the current tokio runtime. Fails if the first
-    /// connection cannot be made (a bad address, a port in use, no such
-    /// serial device); later failures are reconnected.
-    pub async fn open(address: &str, timing: Timing, own_system: Option<u8>) -> std::io::Result<Arc<Link>> {
+    /// the link's tasks on the current tokio runtime; `clock` is the
+    /// daemon's. Fails if the first connection cannot be made (a bad
+    /// address, a port in use, no such serial device); later failures are
+    /// reconnected.
+    pub async fn open(
+        address: &str,
+        timing: Timing,
+        own_system: Option<u8>,
+        clock: SharedClock,
+    ) -> std::io::Result<Arc<Link>> {
         let conn = connect(address).await?;
         let link = Arc::new(Link {
             address: address.to_owned(),
             conn: Mutex::new(Some(Arc::new(conn))),
             feed: broadcast::channel(FEED_CAPACITY).0,
-            shared: Mutex::new(Shared::default()),
+            known: Mutex::new(Known::default()),
             locks: Mutex::new(HashMap::new()),
             timing,
             own_system,
+            clock,
+            runtime: Handle::current(),
+            tasks: Mutex::new(Vec::new()),
             started: Instant::now(),
         });
-        tokio::spawn(read_loop(Arc::clone(&link)));
-        tokio::spawn(heartbeat_loop(Arc::clone(&link)));
-        tokio::spawn(setpoint_loop(Arc::clone(&link)));
+        link.spawn(read_loop(Arc::clone(&link)));
+        link.spawn(heartbeat_loop(Arc::clone(&link)));
+        link.spawn(setpoint_loop(Arc::clone(&link)));
         tracing::info!(address, "MAVLink link open");
         Ok(link)
     }
 
-    /// The shared state, locked.
-    pub fn shared(&self) -> MutexGuard<'_, Shared> {
-        unpoison(&self.shared)
+    /// Runs `f` on what lluavd knows of the autopilot, locked.
+    pub fn with<R>(&self, f: impl FnOnce(&mut Known) -> R) -> R {
+        f(&mut unpoison(&self.known))
+    }
+
+    /// Now, on the daemon's clock.
+    pub fn now_ms(&self) -> i64 {
+        self.clock.unix_ms()
+    }
+
+    /// The protocols' timeouts and retries.
+    pub fn timing(&self) -> &Timing {
+        &self.timing
+    }
+
+    /// Runs `task` on the link's runtime until it ends or the link stops.
+    pub fn spawn<T: Send + 'static>(&self, task: impl Future<Output = T> + Send + 'static) -> JoinHandle<T> {
+        let handle = self.runtime.spawn(task);
+        let mut tasks = unpoison(&self.tasks);
+        tasks.retain(|t| !t.is_finished());
+        tasks.push(handle.abort_handle());
+        handle
+    }
+
+    /// Stops every task of the link: nothing is sent or read any more, and
+    /// the commands still waiting answer -3.
+    pub fn stop(&self) {
+        for task in unpoison(&self.tasks).drain(..) {
+            task.abort();
+        }
+        *unpoison(&self.conn) = None;
+        tracing::info!(address = %self.address, "MAVLink link stopped");
     }
 
     fn header(&self) -> MavHeader {
         let system = self
             .own_system
-            .or_else(|| self.shared().tel.target.map(|t| t.system))
+            .or_else(|| self.with(|k| k.tel().target()).map(|t| t.system))
             .unwrap_or(1);
         MavHeader {
             system_id: system.into(),
@@ -169,23 +190,13 @@ impl Link {
 
     /// Takes in one received message.
     fn receive(self: &Arc<Self>, header: MavHeader, msg: MavMessage) {
-        let came_up = {
-            let mut shared = self.shared();
-            let came_up = shared.tel.observe(&header, &msg, unix_ms());
-            if shared
-                .tel
-                .target
-                .is_some_and(|t| t.system as u32 == header.system_id)
-            {
-                shared.missions.observe(&msg);
-            }
-            came_up
-        };
+        let now = self.now_ms();
+        let came_up = self.with(|k| k.observe(&header, &msg, now));
         // No receiver is fine: nobody waits for the autopilot right now.
         let _ = self.feed.send(Arc::new(Incoming { header, msg }));
         if came_up {
             tracing::info!("MAVLink link up");
-            tokio::spawn(request_rates(Arc::clone(self)));
+            self.spawn(request_rates(Arc::clone(self)));
         }
     }
 }
@@ -205,9 +216,7 @@ impl Port for Link {
     }
 
     fn target(&self) -> Result<Target, MavError> {
-        self.shared()
-            .tel
-            .target
+        self.with(|k| k.tel().target())
             .ok_or_else(|| MavError::LinkLost("no autopilot heartbeat yet".into()))
     }
 }
@@ -264,10 +273,7 @@ async fn setpoint_loop(link: Arc<Link>) {
     every.set_missed_tick_behavior(MissedTickBehavior::Delay);
     loop {
         every.tick().await;
-        let (pose, target) = {
-            let shared = link.shared();
-            (shared.stream.as_ref().map(|s| s.pose), shared.tel.target)
-        };
+        let (pose, target) = link.with(|k| (k.setpoint(), k.tel().target()));
         let (Some(p), Some(t)) = (pose, target) else {
             continue;
         };

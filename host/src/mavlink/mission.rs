@@ -77,19 +77,50 @@ pub struct Run {
 pub struct Missions {
     submitted: VecDeque<Mission>,
     /// What the autopilot holds, after a successful upload.
-    pub on_autopilot: Option<OnAutopilot>,
+    on_autopilot: Option<OnAutopilot>,
     /// The latest run.
-    pub run: Option<Run>,
+    run: Option<Run>,
 }
 
 impl Missions {
-    /// Keeps a mission the autopilot accepted.
-    pub fn submit(&mut self, mission: Mission) {
+    /// Keeps a mission the autopilot accepted, from item `first_seq` on:
+    /// it is what the autopilot holds now.
+    pub fn uploaded(&mut self, mission: Mission, first_seq: u16) {
+        self.on_autopilot = Some(OnAutopilot {
+            ext_id: mission.ext_id,
+            wp_ids: mission.waypoints.iter().map(|w| w.id).collect(),
+            first_seq,
+        });
         self.submitted.retain(|m| m.ext_id != mission.ext_id);
         if self.submitted.len() == MAX_KEPT {
             self.submitted.pop_front();
         }
         self.submitted.push_back(mission);
+    }
+
+    /// `plan` is what the autopilot holds now.
+    pub fn holds(&mut self, plan: OnAutopilot) {
+        self.on_autopilot = Some(plan);
+    }
+
+    /// What the autopilot holds, as far as lluavd knows.
+    pub fn on_autopilot(&self) -> Option<&OnAutopilot> {
+        self.on_autopilot.as_ref()
+    }
+
+    /// A run of `plan` starts.
+    pub fn start_run(&mut self, plan: OnAutopilot) {
+        self.run = Some(Run {
+            plan,
+            reached: Vec::new(),
+            current: None,
+            status: Status::Running,
+        });
+    }
+
+    /// The run did not start after all.
+    pub fn drop_run(&mut self) {
+        self.run = None;
     }
 
     /// The waypoints `wp_ids` of mission `ext_id`, in that order.
@@ -334,10 +365,13 @@ mod tests {
     #[test]
     fn waypoints_are_selected_by_id_in_the_order_asked() {
         let mut m = Missions::default();
-        m.submit(Mission {
-            ext_id: 3,
-            waypoints: vec![wp(1, 0.0, 0.0, -1.0), wp(2, 1.0, 0.0, -1.0)],
-        });
+        m.uploaded(
+            Mission {
+                ext_id: 3,
+                waypoints: vec![wp(1, 0.0, 0.0, -1.0), wp(2, 1.0, 0.0, -1.0)],
+            },
+            0,
+        );
         let picked = m.select(3, &[2, 1]).unwrap();
         assert_eq!(picked.iter().map(|w| w.id).collect::<Vec<_>>(), [2, 1]);
         assert_eq!(

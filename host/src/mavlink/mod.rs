@@ -2,13 +2,16 @@
 //! or UDP/TCP, the second [`Vehicle`] beside the simulator
 //! (`lluavd --mavlink ADDRESS`, DESIGN.md "Backends").
 //!
-//! A link task (module `link`) reads everything the autopilot sends into a
-//! cache (`telemetry`) and a feed; commands that need the autopilot's
+//! A link task (module `link`) reads everything the autopilot sends into
+//! what lluavd knows of it (`state`: the telemetry cache, the setpoint
+//! stream, the missions) and a feed; commands that need the autopilot's
 //! answer run the MAVLink protocols ([`protocol`]) as async sequences
-//! (`ops`) on their own tasks and answer [`Step::Pending`]: the daemon
-//! waits for them with the vehicle unlocked, so other sessions are served
-//! meanwhile. Timeouts and retries are the link task's (tokio time); the
-//! command logic here reads time only from [`Context::now_ms`].
+//! (`ops`) on the link's tasks and answer [`Progress::Waiting`]: the
+//! daemon waits for them with the vehicle unlocked, so other sessions are
+//! served meanwhile, and each sequence ends with its own answer
+//! (`answer`). Timeouts and retries are tokio's timers; wall-clock time
+//! is the daemon's clock, the one requests are stamped with
+//! ([`Context::now_ms`]). [`Vehicle::stop`] ends the link's tasks.
 //!
 //! # What each command does on this backend
 //!
@@ -56,6 +59,7 @@
 //! camera or gimbal manager; the serial and TCP transports and their
 //! reconnection.
 
+mod answer;
 pub mod autopilot;
 mod error;
 pub mod geo;
@@ -63,28 +67,27 @@ mod link;
 mod mission;
 mod ops;
 pub mod protocol;
+mod state;
 mod telemetry;
 
-use std::collections::HashMap;
 use std::io;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::Arc;
 use std::time::Duration;
 
 use ::mavlink::dialects::ardupilotmega::MavCmd;
-use lluav_core::{Args, Command, CommandId, Context, Failure, Fields, Payload, SessionId, Step, Ticket};
-use tokio::sync::oneshot;
+use lluav_core::{Args, Clock, Command, CommandId, Context, Failure, Fields, Payload, SessionId};
 
 pub use error::MavError;
 pub use protocol::Timing;
 
 use crate::files::Files;
-use crate::vehicle::Ready;
 use crate::vehicle::mission::{self as mission_json, Fence};
-use crate::vehicle::{Ned, Refusal, Snapshot, Vehicle};
-use autopilot::{Flavour, Mode, ParamValue};
-use link::{Link, Stream};
+use crate::vehicle::{Ned, Progress, Refusal, Reply, Snapshot, Vehicle};
+use answer::{Answer, Captured, Rebooting, Recording, Saved};
+use autopilot::{Flavour, Mode};
+use link::Link;
 use mission::{Mission, Waypoint};
-use ops::Answer;
+use state::Known;
 
 /// Largest mission file a client may point at, bytes.
 const MAX_MISSION_FILE: u64 = 1 << 20;
@@ -118,112 +121,110 @@ impl MavlinkConfig {
     }
 }
 
-type Outcome = Result<Answer, MavError>;
-
-/// A command waiting for the autopilot.
-struct Pending {
-    cmd: CommandId,
-    session: SessionId,
-    /// Filled by the future [`Vehicle::ready`] returned.
-    slot: Arc<Mutex<Option<Outcome>>>,
-    /// The task's answer, until `ready` takes it.
-    rx: Option<oneshot::Receiver<Outcome>>,
-}
-
 /// An autopilot over MAVLink.
 pub struct MavlinkVehicle {
     link: Arc<Link>,
-    runtime: tokio::runtime::Handle,
-    pending: HashMap<u32, Pending>,
-    next_ticket: u32,
     takeoff_alt: f32,
-    recording: bool,
-    images: u32,
 }
 
 impl std::fmt::Debug for MavlinkVehicle {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MavlinkVehicle")
-            .field("pending", &self.pending.len())
-            .finish_non_exhaustive()
+        f.debug_struct("MavlinkVehicle").finish_non_exhaustive()
     }
 }
 
 impl MavlinkVehicle {
     /// Connects to the autopilot and starts the link's tasks on the
-    /// current tokio runtime.
-    pub async fn open(cfg: MavlinkConfig) -> io::Result<MavlinkVehicle> {
-        let link = Link::open(&cfg.address, cfg.timing, cfg.own_system).await?;
+    /// current tokio runtime; `clock` is the daemon's, the one requests
+    /// are stamped with.
+    pub async fn open(
+        cfg: MavlinkConfig,
+        clock: impl Clock + Send + Sync + 'static,
+    ) -> io::Result<MavlinkVehicle> {
+        let link = Link::open(&cfg.address, cfg.timing, cfg.own_system, Arc::new(clock)).await?;
         Ok(MavlinkVehicle {
             link,
-            runtime: tokio::runtime::Handle::current(),
-            pending: HashMap::new(),
-            next_ticket: 1,
             takeoff_alt: cfg.takeoff_alt,
-            recording: false,
-            images: 0,
         })
     }
 
-    /// Runs `op` on its own task and answers pending on it.
-    fn pend(
-        &mut self,
+    /// Runs `op` on the link's tasks; the command waits for it, and its
+    /// answer (or failure) is the reply.
+    fn pend<A: Answer>(
+        &self,
         cmd: CommandId,
-        ctx: &Context,
-        op: impl Future<Output = Outcome> + Send + 'static,
-    ) -> Step {
-        let ticket = self.next_ticket;
-        self.next_ticket = self.next_ticket.wrapping_add(1).max(1);
-        let (tx, rx) = oneshot::channel();
-        self.runtime.spawn(async move {
-            // The session may be gone; what the op changed is recorded.
-            let _ = tx.send(op.await);
-        });
-        self.pending.insert(
-            ticket,
-            Pending {
-                cmd,
-                session: ctx.session,
-                slot: Arc::new(Mutex::new(None)),
-                rx: Some(rx),
-            },
-        );
-        Step::Pending(Ticket(ticket))
+        op: impl Future<Output = Result<A, MavError>> + Send + 'static,
+    ) -> Progress {
+        // The op runs on its own task: a client that leaves early stops
+        // waiting, not the exchange with the autopilot.
+        let task = self.link.spawn(op);
+        Progress::Waiting(Box::pin(async move {
+            let outcome = task
+                .await
+                .unwrap_or_else(|_| Err(MavError::NoAnswer("lluavd stopped the link".into())));
+            let reply: Reply = Box::new(move |out: &mut Fields<'_>| match outcome {
+                Ok(answer) => {
+                    answer.write(out);
+                    Ok(())
+                }
+                Err(e) => {
+                    tracing::info!(cmd = cmd.name(), error = %e, "command failed");
+                    Err(e.fail(out))
+                }
+            });
+            reply
+        }))
     }
 
     /// The flavour, if the link is up now; else -3.
     fn link_up(&self, ctx: &Context) -> Result<Flavour, MavError> {
-        let shared = self.link.shared();
-        match (shared.tel.link_up(ctx.now_ms), shared.tel.flavour) {
-            (true, Some(f)) => Ok(f),
-            _ => Err(MavError::LinkLost(
-                match shared.tel.heartbeat_age_ms(ctx.now_ms) {
+        self.link.with(|k| {
+            let tel = k.tel();
+            match (tel.link_up(ctx.now_ms), tel.flavour()) {
+                (true, Some(f)) => Ok(f),
+                _ => Err(MavError::LinkLost(match tel.heartbeat_age_ms(ctx.now_ms) {
                     Some(age) => format!("no heartbeat from the autopilot for {:.1} s", age as f64 / 1000.0),
                     None => "no heartbeat from the autopilot yet".into(),
-                },
-            )),
-        }
+                })),
+            }
+        })
     }
 
     /// The flavour, if the link is up and the vehicle flies; else -3/-1.
     fn flying(&self, ctx: &Context) -> Result<Flavour, MavError> {
         let flavour = self.link_up(ctx)?;
-        if self.link.shared().tel.airborne() {
+        if self.link.with(|k| k.tel().airborne()) {
             Ok(flavour)
         } else {
             Err(MavError::not_flying())
         }
     }
 
-    fn command(
-        &mut self,
+    /// Sends `cmd` when the link is up; `then` answers it once
+    /// acknowledged.
+    fn command<A: Answer>(
+        &self,
         id: CommandId,
         ctx: &Context,
         cmd: MavCmd,
         params: [f32; 7],
-    ) -> Result<Step, MavError> {
+        then: impl FnOnce(&mut Known) -> A + Send + 'static,
+    ) -> Result<Progress, MavError> {
         self.link_up(ctx)?;
-        Ok(self.pend(id, ctx, ops::command(Arc::clone(&self.link), cmd, params)))
+        Ok(self.pend(id, ops::command(Arc::clone(&self.link), cmd, params, then)))
+    }
+
+    /// A flight command for a flying vehicle: the setpoint stream stops.
+    fn redirect(
+        &self,
+        id: CommandId,
+        ctx: &Context,
+        cmd: MavCmd,
+        params: [f32; 7],
+    ) -> Result<Progress, MavError> {
+        self.flying(ctx)?;
+        self.link.with(Known::stop_stream);
+        self.command(id, ctx, cmd, params, ops::acknowledged)
     }
 
     fn run(
@@ -232,43 +233,36 @@ impl MavlinkVehicle {
         ctx: &Context,
         files: &Files,
         out: &mut Fields<'_>,
-    ) -> Result<Step, MavError> {
+    ) -> Result<Progress, MavError> {
         use CommandId as C;
         let link = Arc::clone(&self.link);
+        let nan = f32::NAN;
         match (cmd.id(), cmd.args()) {
             (C::Statics | C::Hud1 | C::MavlinkMsgs | C::ShowSp | C::MwList | C::DumpMissionresult, _) => {
-                self.report(cmd, ctx, out)?;
-                Ok(Step::Done)
+                self.link.with(|k| report(k, cmd, ctx, out))?;
+                Ok(Progress::Done)
             }
             (C::Takeoff, _) => {
                 let flavour = self.link_up(ctx)?;
-                link.shared().stream = None;
-                Ok(self.pend(cmd.id(), ctx, ops::takeoff(link, flavour, self.takeoff_alt)))
+                link.with(Known::stop_stream);
+                Ok(self.pend(cmd.id(), ops::takeoff(link, flavour, self.takeoff_alt)))
             }
             (C::Land, _) => {
-                self.flying(ctx)?;
-                link.shared().stream = None;
-                let nan = f32::NAN;
                 let params = [0.0, 0.0, 0.0, nan, nan, nan, nan];
-                self.command(cmd.id(), ctx, MavCmd::MAV_CMD_NAV_LAND, params)
+                self.redirect(cmd.id(), ctx, MavCmd::MAV_CMD_NAV_LAND, params)
             }
-            (C::Rtl, _) => {
-                self.flying(ctx)?;
-                link.shared().stream = None;
-                self.command(cmd.id(), ctx, MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH, [0.0; 7])
-            }
+            (C::Rtl, _) => self.redirect(cmd.id(), ctx, MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH, [0.0; 7]),
             (C::Mrtl, _) => {
                 let flavour = self.flying(ctx)?;
                 let [p1, p2, p3] = flavour
                     .set_mode_params(Mode::SmartRtl)
                     .ok_or(MavError::Unsupported)?;
-                link.shared().stream = None;
                 let params = [p1, p2, p3, 0.0, 0.0, 0.0, 0.0];
-                self.command(cmd.id(), ctx, MavCmd::MAV_CMD_DO_SET_MODE, params)
+                self.redirect(cmd.id(), ctx, MavCmd::MAV_CMD_DO_SET_MODE, params)
             }
             (C::Disarm, _) => {
                 self.link_up(ctx)?;
-                Ok(self.pend(cmd.id(), ctx, ops::disarm(link)))
+                Ok(self.pend(cmd.id(), ops::disarm(link)))
             }
             (C::SetSpNed, Args::Setpoint(p)) => self.set_setpoint(*p, ctx, out),
             (C::Mission, Args::Mission { ext_id, payload }) => self.mission(*ext_id, payload, ctx, files),
@@ -279,55 +273,67 @@ impl MavlinkVehicle {
 
     /// Parameters, camera, gimbal, the autopilot's reboot; the rest is
     /// not supported.
-    fn run_device(&mut self, cmd: &Command<'_>, ctx: &Context) -> Result<Step, MavError> {
+    fn run_device(&mut self, cmd: &Command<'_>, ctx: &Context) -> Result<Progress, MavError> {
         use CommandId as C;
         let link = Arc::clone(&self.link);
         let storage = MavCmd::MAV_CMD_PREFLIGHT_STORAGE;
         let gimbal = MavCmd::MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW;
         let nan = f32::NAN;
-        match (cmd.id(), cmd.args()) {
+        let id = cmd.id();
+        match (id, cmd.args()) {
             (C::Param, _) => {
                 self.link_up(ctx)?;
-                Ok(self.pend(cmd.id(), ctx, ops::all_params(link)))
+                Ok(self.pend(id, ops::all_params(link)))
             }
             (C::GetParam, Args::ParamName(name)) => {
                 check_param_name(name)?;
                 self.link_up(ctx)?;
-                Ok(self.pend(cmd.id(), ctx, ops::get_param(link, (*name).to_owned())))
+                Ok(self.pend(id, ops::get_param(link, (*name).to_owned())))
             }
             (C::SetParam, Args::SetParam { name, value }) => {
                 check_param_name(name)?;
                 self.link_up(ctx)?;
-                let op = ops::set_param(link, (*name).to_owned(), (*value).to_owned());
-                Ok(self.pend(cmd.id(), ctx, op))
+                Ok(self.pend(id, ops::set_param(link, (*name).to_owned(), (*value).to_owned())))
             }
             (C::SaveParam, &Args::Flag(save)) => {
                 let what = if save { 1.0 } else { 0.0 };
-                self.command(cmd.id(), ctx, storage, [what, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+                let params = [what, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                self.command(id, ctx, storage, params, move |_| Saved(save))
             }
-            (C::ResetParam, _) => self.command(cmd.id(), ctx, storage, [2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            (C::ResetParam, _) => {
+                let params = [2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                self.command(id, ctx, storage, params, |_| Saved(false))
+            }
             (C::RebootAp, _) => {
                 let params = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
-                self.command(cmd.id(), ctx, MavCmd::MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, params)
+                let reboot = MavCmd::MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN;
+                self.command(id, ctx, reboot, params, |_| Rebooting)
             }
             (C::Capture, _) => {
-                let seq = self.images.wrapping_add(1);
+                let seq = self.link.with(|k| k.images()).wrapping_add(1);
                 let params = [0.0, 0.0, 1.0, seq as f32, 0.0, 0.0, 0.0];
-                self.command(cmd.id(), ctx, MavCmd::MAV_CMD_IMAGE_START_CAPTURE, params)
+                let capture = MavCmd::MAV_CMD_IMAGE_START_CAPTURE;
+                self.command(id, ctx, capture, params, |k| Captured(k.count_image()))
             }
             (C::Record, _) => {
-                let what = if self.recording {
-                    MavCmd::MAV_CMD_VIDEO_STOP_CAPTURE
-                } else {
+                let start = !self.link.with(|k| k.recording());
+                let what = if start {
                     MavCmd::MAV_CMD_VIDEO_START_CAPTURE
+                } else {
+                    MavCmd::MAV_CMD_VIDEO_STOP_CAPTURE
                 };
-                self.command(cmd.id(), ctx, what, [0.0; 7])
+                self.command(id, ctx, what, [0.0; 7], move |k| {
+                    k.set_recording(start);
+                    Recording(start)
+                })
             }
             (C::SiyiCenter | C::Ara8Center, _) => {
-                self.command(cmd.id(), ctx, gimbal, [0.0, 0.0, nan, nan, 0.0, 0.0, 0.0])
+                let params = [0.0, 0.0, nan, nan, 0.0, 0.0, 0.0];
+                self.command(id, ctx, gimbal, params, ops::acknowledged)
             }
             (C::Ara8Pitch, &Args::Angle(pitch)) => {
-                self.command(cmd.id(), ctx, gimbal, [pitch, nan, nan, nan, 0.0, 0.0, 0.0])
+                let params = [pitch, nan, nan, nan, 0.0, 0.0, 0.0];
+                self.command(id, ctx, gimbal, params, ops::acknowledged)
             }
             _ => Err(MavError::Unsupported),
         }
@@ -338,29 +344,22 @@ impl MavlinkVehicle {
         pose: lluav_core::Pose,
         ctx: &Context,
         out: &mut Fields<'_>,
-    ) -> Result<Step, MavError> {
+    ) -> Result<Progress, MavError> {
         // As the simulator: setpoints move a flying vehicle (on PX4, OFFBOARD
         // on the ground would take off towards the setpoint when armed).
         let flavour = self.flying(ctx)?;
-        let in_mode = {
-            let mut shared = self.link.shared();
-            let stream = shared.stream.get_or_insert_with(|| Stream {
-                pose,
-                owners: Default::default(),
-            });
-            stream.pose = pose;
-            stream.owners.insert(ctx.session);
-            shared
-                .tel
+        let in_mode = self.link.with(|k| {
+            k.stream(pose, ctx.session);
+            k.tel()
                 .custom_mode()
                 .is_some_and(|m| flavour.is_mode(m, Mode::Guided))
-        };
+        });
         if in_mode {
-            self.write_setpoint_answer(out);
-            Ok(Step::Done)
+            self.link.with(|k| k.write_setpoint(out));
+            Ok(Progress::Done)
         } else {
             let op = ops::follow_setpoints(Arc::clone(&self.link), flavour);
-            Ok(self.pend(CommandId::SetSpNed, ctx, op))
+            Ok(self.pend(CommandId::SetSpNed, op))
         }
     }
 
@@ -370,7 +369,7 @@ impl MavlinkVehicle {
         payload: &Payload<'_>,
         ctx: &Context,
         files: &Files,
-    ) -> Result<Step, MavError> {
+    ) -> Result<Progress, MavError> {
         let text = match payload {
             Payload::Json(s) => (*s).to_owned(),
             Payload::Path(p) => files
@@ -395,27 +394,24 @@ impl MavlinkVehicle {
             items,
             first_seq,
         );
-        Ok(self.pend(CommandId::Mission, ctx, op))
+        Ok(self.pend(CommandId::Mission, op))
     }
 
     fn home(&self) -> Result<(geo::Global, Ned), MavError> {
-        let shared = self.link.shared();
-        match (shared.tel.home_global(), shared.tel.home_local()) {
-            (Some(g), Some(l)) => Ok((g, l)),
-            _ => Err(MavError::State(
-                "Home position unknown: the autopilot has not sent HOME_POSITION yet".into(),
-            )),
-        }
+        self.link
+            .with(|k| match (k.tel().home_global(), k.tel().home_local()) {
+                (Some(g), Some(l)) => Ok((g, l)),
+                _ => Err(MavError::State(
+                    "Home position unknown: the autopilot has not sent HOME_POSITION yet".into(),
+                )),
+            })
     }
 
-    fn exec(&mut self, ext_id: u32, wp_ids: &[u32], ctx: &Context) -> Result<Step, MavError> {
-        let (selected, on_autopilot) = {
-            let shared = self.link.shared();
-            (
-                shared.missions.select(ext_id, wp_ids)?,
-                shared.missions.on_autopilot.clone(),
-            )
-        };
+    fn exec(&mut self, ext_id: u32, wp_ids: &[u32], ctx: &Context) -> Result<Progress, MavError> {
+        let (selected, on_autopilot) = self.link.with(|k| {
+            let missions = k.missions();
+            Ok::<_, MavError>((missions.select(ext_id, wp_ids)?, missions.on_autopilot().cloned()))
+        })?;
         let flavour = self.flying(ctx)?;
         let (home, home_local) = self.home()?;
         let (items, first_seq) = mission::items(flavour, home, home_local, &selected);
@@ -425,151 +421,43 @@ impl MavlinkVehicle {
             first_seq,
         };
         let upload = (on_autopilot.as_ref() != Some(&plan)).then_some(items);
-        Ok(self.pend(
-            CommandId::MwExec,
-            ctx,
-            ops::exec(Arc::clone(&self.link), plan, upload),
-        ))
-    }
-
-    fn report(&self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), MavError> {
-        use CommandId as C;
-        let shared = self.link.shared();
-        let tel = &shared.tel;
-        match (cmd.id(), cmd.args()) {
-            (C::MavlinkMsgs, _) => tel.write_counts(out),
-            (C::ShowSp, _) => {
-                drop(shared);
-                self.write_setpoint_answer(out);
-            }
-            (C::Statics, _) => {
-                out.object("comm", |o| {
-                    o.bool("mavlink", tel.link_up(ctx.now_ms))
-                        .u64("mavlink_msgs", tel.total_messages());
-                });
-                out.object("stat", |o| {
-                    o.f64("distance_m", (tel.distance_m * 10.0).round() / 10.0);
-                });
-            }
-            (C::Hud1, _) => {
-                let p = tel.position().unwrap_or_default();
-                // ENU: x east, y north, z up.
-                out.object("uav_pos_enu", |o| Ned::new(p.y, p.x, -p.z).write(o));
-                out.object("extra", |o| {
-                    o.str("fsm", tel.fsm());
-                    match tel.yaw() {
-                        Some(y) => o.f32("yaw", y),
-                        None => o.null("yaw"),
-                    };
-                });
-            }
-            (C::MwList, _) => shared.missions.write_list(out),
-            (C::DumpMissionresult, &Args::OptCount(ext_id)) => shared.missions.write_result(ext_id, out)?,
-            _ => return Err(MavError::Unsupported),
-        }
-        Ok(())
-    }
-
-    fn write_setpoint_answer(&self, out: &mut Fields<'_>) {
-        let shared = self.link.shared();
-        match &shared.stream {
-            Some(s) => out.object("sp", |o| {
-                o.f32("x", s.pose.x)
-                    .f32("y", s.pose.y)
-                    .f32("z", s.pose.z)
-                    .f32("yaw", s.pose.yaw);
-            }),
-            None => out.null("sp"),
-        };
-        out.bool("active", shared.stream.is_some())
-            .str("fsm", shared.tel.fsm());
-    }
-
-    /// Writes a finished command's response.
-    fn write_answer(&mut self, cmd: CommandId, answer: Answer, out: &mut Fields<'_>) {
-        use CommandId as C;
-        match (cmd, answer) {
-            (C::Takeoff, Answer::Takeoff { target_alt }) => {
-                out.str("fsm", "takeoff").f32("target_alt", target_alt);
-            }
-            (C::Disarm, _) => {
-                out.bool("armed", false).str("fsm", "disarmed");
-            }
-            (C::SetSpNed, _) => self.write_setpoint_answer(out),
-            (
-                C::Mission,
-                Answer::Mission {
-                    ext_id,
-                    waypoints,
-                    items,
-                },
-            ) => {
-                out.u64("ext_id", ext_id.into())
-                    .u64("waypoints", waypoints as u64)
-                    .u64("items", items as u64);
-            }
-            (C::MwExec, Answer::Exec { ext_id, wp_ids }) => {
-                out.u64("ext_id", ext_id.into()).array("wp_ids", |a| {
-                    for id in wp_ids {
-                        a.u64(id.into());
-                    }
-                });
-                out.str("fsm", "mission");
-            }
-            (
-                C::GetParam | C::SetParam,
-                Answer::Param {
-                    name,
-                    value,
-                    ty,
-                    index,
-                    count,
-                },
-            ) => {
-                out.object("param", |o| write_param(o, &name, value));
-                out.object("info", |o| {
-                    o.str("type", autopilot::type_name(ty))
-                        .u64("index", index.into())
-                        .u64("count", count.into());
-                });
-            }
-            (C::Param, Answer::Params(all)) => {
-                out.object("param", |o| {
-                    for (name, value) in &all {
-                        write_param(o, name, *value);
-                    }
-                });
-            }
-            (C::SaveParam | C::ResetParam, _) => {
-                out.bool("saved", cmd == C::SaveParam);
-            }
-            (C::RebootAp, _) => {
-                out.object("reboot", |o| {
-                    o.str("target", "autopilot").bool("simulated", false);
-                });
-            }
-            (C::Capture, _) => {
-                self.images = self.images.wrapping_add(1);
-                out.object("capture", |o| {
-                    o.u64("seq", self.images.into());
-                });
-            }
-            (C::Record, _) => {
-                self.recording = !self.recording;
-                out.bool("recording", self.recording);
-            }
-            _ => {
-                out.str("fsm", self.link.shared().tel.fsm());
-            }
-        }
+        Ok(self.pend(CommandId::MwExec, ops::exec(Arc::clone(&self.link), plan, upload)))
     }
 }
 
-fn write_param(o: &mut Fields<'_>, name: &str, value: ParamValue) {
-    match value {
-        ParamValue::Int(i) => o.i64(name, i),
-        ParamValue::Float(f) => o.f32(name, f),
-    };
+/// The reports answered from what the link knows.
+fn report(k: &Known, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<(), MavError> {
+    use CommandId as C;
+    let tel = k.tel();
+    match (cmd.id(), cmd.args()) {
+        (C::MavlinkMsgs, _) => tel.write_counts(out),
+        (C::ShowSp, _) => k.write_setpoint(out),
+        (C::Statics, _) => {
+            out.object("comm", |o| {
+                o.bool("mavlink", tel.link_up(ctx.now_ms))
+                    .u64("mavlink_msgs", tel.total_messages());
+            });
+            out.object("stat", |o| {
+                o.f64("distance_m", (tel.distance_m() * 10.0).round() / 10.0);
+            });
+        }
+        (C::Hud1, _) => {
+            let p = tel.position().unwrap_or_default();
+            // ENU: x east, y north, z up.
+            out.object("uav_pos_enu", |o| Ned::new(p.y, p.x, -p.z).write(o));
+            out.object("extra", |o| {
+                o.str("fsm", tel.fsm());
+                match tel.yaw() {
+                    Some(y) => o.f32("yaw", y),
+                    None => o.null("yaw"),
+                };
+            });
+        }
+        (C::MwList, _) => k.missions().write_list(out),
+        (C::DumpMissionresult, &Args::OptCount(ext_id)) => k.missions().write_result(ext_id, out)?,
+        _ => return Err(MavError::Unsupported),
+    }
+    Ok(())
 }
 
 /// PARAM_* messages carry at most 16 characters of name.
@@ -584,7 +472,7 @@ fn check_param_name(name: &str) -> Result<(), MavError> {
 
 impl Vehicle for MavlinkVehicle {
     fn armed(&self) -> bool {
-        self.link.shared().tel.armed()
+        self.link.with(|k| k.tel().armed())
     }
 
     fn execute(
@@ -593,96 +481,77 @@ impl Vehicle for MavlinkVehicle {
         ctx: &Context,
         files: &Files,
         out: &mut Fields<'_>,
-    ) -> Result<Step, Failure> {
+    ) -> Result<Progress, Failure> {
         self.run(cmd, ctx, files, out).map_err(|e| {
             tracing::debug!(cmd = cmd.id().name(), error = %e, "command refused");
             e.fail(out)
         })
     }
 
-    fn finish(&mut self, ticket: Ticket, _ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
-        let Some(p) = self.pending.remove(&ticket.0) else {
-            tracing::error!(ticket = ticket.0, "finish for an unknown ticket");
-            return Err(Failure::unhandled());
-        };
-        let outcome = p.slot.lock().unwrap_or_else(PoisonError::into_inner).take();
-        match outcome {
-            Some(Ok(answer)) => {
-                self.write_answer(p.cmd, answer, out);
-                Ok(Step::Done)
-            }
-            Some(Err(e)) => {
-                tracing::info!(cmd = p.cmd.name(), error = %e, "command failed");
-                Err(e.fail(out))
-            }
-            None => {
-                tracing::error!(ticket = ticket.0, "finish before the ticket was ready");
-                Err(Failure::unhandled())
-            }
-        }
-    }
-
-    fn ready(&mut self, ticket: Ticket) -> Ready {
-        let Some(p) = self.pending.get_mut(&ticket.0) else {
-            return Box::pin(std::future::ready(()));
-        };
-        let slot = Arc::clone(&p.slot);
-        let rx = p.rx.take();
-        Box::pin(async move {
-            let outcome = match rx {
-                Some(rx) => rx
-                    .await
-                    .unwrap_or_else(|_| Err(MavError::NoAnswer("the command's task ended".into()))),
-                None => Err(MavError::NoAnswer("the command was already waited for".into())),
-            };
-            *slot.lock().unwrap_or_else(PoisonError::into_inner) = Some(outcome);
-        })
-    }
-
     fn session_closed(&mut self, session: SessionId) {
-        self.pending.retain(|_, p| p.session != session);
-        let mut shared = self.link.shared();
-        if let Some(stream) = shared.stream.as_mut() {
-            stream.owners.remove(&session);
-            if stream.owners.is_empty() {
-                shared.stream = None;
-                tracing::warn!("setpoint stream stopped: no client that set it is connected");
-            }
-        }
+        self.link.with(|k| k.release(session));
     }
 
     fn write_state(&self, ctx: &Context, state: &mut Fields<'_>) {
-        let shared = self.link.shared();
-        shared.tel.write_state(ctx.now_ms, state);
-        state.bool("lock_mode", ctx.lock_mode);
-        match &shared.stream {
-            Some(s) => state.object("setpoint", |o| {
-                o.f32("x", s.pose.x)
-                    .f32("y", s.pose.y)
-                    .f32("z", s.pose.z)
-                    .f32("yaw", s.pose.yaw);
-            }),
-            None => state.null("setpoint"),
-        };
-        shared.missions.write_state(state);
+        self.link
+            .with(|k| k.write_state(ctx.now_ms, ctx.lock_mode, state));
     }
 
     fn snapshot(&self) -> Snapshot {
-        let shared = self.link.shared();
-        let tel = &shared.tel;
-        Snapshot {
-            backend: "mavlink",
-            time_s: tel.boot_s(),
-            position: tel.position().unwrap_or_default(),
-            yaw: tel.yaw().map_or(0.0, f64::from),
-            fsm: tel.fsm(),
-            distance_m: tel.distance_m,
-        }
+        self.link.with(|k| {
+            let tel = k.tel();
+            Snapshot {
+                backend: "mavlink",
+                time_s: tel.boot_s(),
+                position: tel.position().unwrap_or_default(),
+                yaw: tel.yaw().map_or(0.0, f64::from),
+                fsm: tel.fsm(),
+                distance_m: tel.distance_m(),
+            }
+        })
     }
 
     fn tick(&mut self, _dt: Duration) {}
 
     fn link_up(&self, now_ms: i64) -> Option<bool> {
-        Some(self.link.shared().tel.link_up(now_ms))
+        Some(self.link.with(|k| k.tel().link_up(now_ms)))
+    }
+
+    fn stop(&mut self) {
+        self.link.stop();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn stopping_the_vehicle_ends_every_task_of_the_link_and_nothing_more_is_sent() {
+        let autopilot = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let address = format!("udpout:{}", autopilot.local_addr().unwrap());
+        let mut vehicle = MavlinkVehicle::open(MavlinkConfig::new(address), || 0i64)
+            .await
+            .unwrap();
+        let mut buf = [0u8; 512];
+        let heard = tokio::time::timeout(Duration::from_secs(5), autopilot.recv(&mut buf)).await;
+        assert!(heard.is_ok(), "no heartbeat from lluavd");
+        vehicle.stop();
+        // Only the link's tasks hold it besides the vehicle: once they all
+        // ended, the vehicle's is the last reference.
+        let ended = tokio::time::timeout(Duration::from_secs(2), async {
+            while Arc::strong_count(&vehicle.link) > 1 {
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+        })
+        .await;
+        assert!(
+            ended.is_ok(),
+            "{} references left",
+            Arc::strong_count(&vehicle.link)
+        );
+        while autopilot.try_recv(&mut buf).is_ok() {}
+        let more = tokio::time::timeout(Duration::from_millis(1500), autopilot.recv(&mut buf)).await;
+        assert!(more.is_err(), "lluavd still sends after stop");
     }
 }

@@ -24,9 +24,9 @@ pub const LINK_TIMEOUT_MS: i64 = 3000;
 #[derive(Debug, Default)]
 pub struct Telemetry {
     /// The autopilot's address: the first heartbeat from an autopilot.
-    pub target: Option<Target>,
+    target: Option<Target>,
     /// Which autopilot.
-    pub flavour: Option<Flavour>,
+    flavour: Option<Flavour>,
     heartbeat: Option<HEARTBEAT_DATA>,
     /// When the last heartbeat arrived, ms since the Unix epoch.
     heartbeat_ms: Option<i64>,
@@ -39,12 +39,10 @@ pub struct Telemetry {
     battery: Option<BATTERY_STATUS_DATA>,
     /// The parameter encoding `AUTOPILOT_VERSION` announced.
     encoding: Option<Encoding>,
-    /// `AUTOPILOT_VERSION.flight_sw_version`.
-    pub version: Option<u32>,
     /// Messages received, by type, from anyone on the link.
     counts: BTreeMap<&'static str, u64>,
     /// Distance flown while armed, metres.
-    pub distance_m: f64,
+    distance_m: f64,
 }
 
 impl Telemetry {
@@ -94,7 +92,6 @@ impl Telemetry {
             MavMessage::EXTENDED_SYS_STATE(m) => self.extended = Some(m.clone()),
             MavMessage::BATTERY_STATUS(m) => self.battery = Some(m.clone()),
             MavMessage::AUTOPILOT_VERSION(m) => {
-                self.version = Some(m.flight_sw_version);
                 let caps = m.capabilities;
                 self.encoding = if caps
                     .contains(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
@@ -110,6 +107,21 @@ impl Telemetry {
             _ => {}
         }
         false
+    }
+
+    /// The autopilot's address, once a heartbeat named it.
+    pub fn target(&self) -> Option<Target> {
+        self.target
+    }
+
+    /// Which autopilot, once a heartbeat named it.
+    pub fn flavour(&self) -> Option<Flavour> {
+        self.flavour
+    }
+
+    /// Distance flown while armed, metres.
+    pub fn distance_m(&self) -> f64 {
+        self.distance_m
     }
 
     /// Whether a heartbeat arrived within [`LINK_TIMEOUT_MS`] of `now_ms`.

@@ -50,28 +50,51 @@ use std::time::Duration;
 use lluav_core::{Backend, Command, CommandId, Context, Failure, Fields, SessionId, Step, Ticket};
 
 use crate::companion::Companion;
-use crate::vehicle::{Ready, Refusal, Vehicle};
+use crate::vehicle::{Progress, Refusal, Reply, Vehicle, Wait};
 pub use route::{Owner, owner};
 
 /// The daemon's backend: a companion computer and a vehicle.
-#[derive(Debug)]
 pub struct Onboard<V> {
     companion: Companion,
     vehicle: V,
+    next_ticket: u32,
+    /// The wait of the command [`Backend::execute`] just left pending,
+    /// until the daemon takes it in the same critical section.
+    waiting: Option<(Ticket, Wait)>,
+    /// A waited-for command's reply, from the daemon to
+    /// [`Backend::finish`] in the same critical section.
+    arrived: Option<(Ticket, Reply)>,
+}
+
+impl<V: std::fmt::Debug> std::fmt::Debug for Onboard<V> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Onboard")
+            .field("companion", &self.companion)
+            .field("vehicle", &self.vehicle)
+            .finish_non_exhaustive()
+    }
 }
 
 impl<V: Vehicle> Onboard<V> {
     /// Composes the two.
     pub fn new(companion: Companion, vehicle: V) -> Self {
-        Onboard { companion, vehicle }
+        Onboard {
+            companion,
+            vehicle,
+            next_ticket: 1,
+            waiting: None,
+            arrived: None,
+        }
     }
 
-    fn route(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
-        let Onboard { companion, vehicle } = self;
+    fn route(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Progress, Failure> {
+        let Onboard {
+            companion, vehicle, ..
+        } = self;
         let for_companion = |companion: &mut Companion, vehicle: &V, out: &mut Fields<'_>| {
             companion
                 .execute(cmd, ctx, &vehicle.snapshot(), out)
-                .map(|()| Step::Done)
+                .map(|()| Progress::Done)
                 .map_err(|e| e.fail(out))
         };
         match owner(cmd.id()) {
@@ -82,13 +105,40 @@ impl<V: Vehicle> Onboard<V> {
                     vehicle.write_state(ctx, s);
                     companion.write_state(s);
                 });
-                Ok(Step::Done)
+                Ok(Progress::Done)
             }
             Owner::Both => match vehicle.execute(cmd, ctx, companion.files(), out)? {
-                Step::Done => for_companion(companion, vehicle, out),
-                pending => Ok(pending),
+                Progress::Done => for_companion(companion, vehicle, out),
+                waiting => Ok(waiting),
             },
         }
+    }
+
+    /// Keeps a command's wait for the daemon, under a new ticket.
+    fn wait(&mut self, wait: Wait) -> Step {
+        let ticket = Ticket(self.next_ticket);
+        self.next_ticket = self.next_ticket.wrapping_add(1).max(1);
+        if self.waiting.replace((ticket, wait)).is_some() {
+            tracing::error!("a pending command's wait was never taken");
+        }
+        Step::Pending(ticket)
+    }
+
+    /// The wait of the command left pending with `ticket`: the daemon
+    /// takes it right after [`lluav_core::Server::handle`] or
+    /// [`lluav_core::Server::resume`] answered pending, awaits it unlocked,
+    /// then hands its reply to [`Onboard::arrive`].
+    pub fn take_wait(&mut self, ticket: Ticket) -> Option<Wait> {
+        match self.waiting.take() {
+            Some((t, wait)) if t == ticket => Some(wait),
+            _ => None,
+        }
+    }
+
+    /// The reply of the command pending with `ticket`, for the
+    /// [`lluav_core::Server::resume`] that follows at once.
+    pub fn arrive(&mut self, ticket: Ticket, reply: Reply) {
+        self.arrived = Some((ticket, reply));
     }
 }
 
@@ -101,7 +151,9 @@ impl<V: Vehicle> Backend for Onboard<V> {
         // A bug must not take the daemon down: a panic is answered -100 and
         // the vehicle carries on with the state it had.
         match panic::catch_unwind(AssertUnwindSafe(|| self.route(cmd, ctx, out))) {
-            Ok(result) => result,
+            Ok(Ok(Progress::Done)) => Ok(Step::Done),
+            Ok(Ok(Progress::Waiting(wait))) => Ok(self.wait(wait)),
+            Ok(Err(failure)) => Err(failure),
             Err(_) => {
                 tracing::error!(cmd = cmd.id().name(), "backend panicked; answered as unhandled");
                 Err(Failure::unhandled())
@@ -109,8 +161,14 @@ impl<V: Vehicle> Backend for Onboard<V> {
         }
     }
 
-    fn finish(&mut self, ticket: Ticket, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
-        self.vehicle.finish(ticket, ctx, out)
+    fn finish(&mut self, ticket: Ticket, _ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
+        match self.arrived.take() {
+            Some((t, reply)) if t == ticket => reply(out).map(|()| Step::Done),
+            _ => {
+                tracing::error!(ticket = ticket.0, "finish without the command's reply");
+                Err(Failure::unhandled())
+            }
+        }
     }
 
     fn password_changed(&mut self, new: &str) -> Result<(), Failure> {
@@ -147,6 +205,11 @@ impl<V: Vehicle> Onboard<V> {
         vehicle
     }
 
+    /// Stops the vehicle's background work.
+    pub fn stop(&mut self) {
+        self.vehicle.stop();
+    }
+
     /// A password saved by an earlier `passwd`, used when none is
     /// configured.
     pub fn stored_password(&self) -> Option<String> {
@@ -157,12 +220,6 @@ impl<V: Vehicle> Onboard<V> {
     /// start.
     pub fn stored_lock_mode(&self) -> bool {
         self.companion.stored_lock_mode()
-    }
-
-    /// Completes once the pending `ticket` can be finished (see
-    /// [`Vehicle::ready`]).
-    pub fn ready(&mut self, ticket: Ticket) -> Ready {
-        self.vehicle.ready(ticket)
     }
 
     /// Whether the link to the autopilot is up (see [`Vehicle::link_up`]).
@@ -193,7 +250,7 @@ mod tests {
             _: &Context,
             _: &Files,
             _: &mut Fields<'_>,
-        ) -> Result<Step, Failure> {
+        ) -> Result<Progress, Failure> {
             panic!("injected fault")
         }
         fn write_state(&self, _: &Context, state: &mut Fields<'_>) {

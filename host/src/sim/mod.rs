@@ -29,10 +29,10 @@ use std::io;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use lluav_core::{Command, CommandId, Context, Failure, Fields, Section, Step};
+use lluav_core::{Command, CommandId, Context, Failure, Fields, Section};
 
 use crate::files::{Files, Saved};
-use crate::vehicle::{Refusal, Snapshot, Vehicle};
+use crate::vehicle::{Progress, Refusal, Snapshot, Vehicle};
 use camera::Camera;
 use devices::Devices;
 use error::{SimError, SimResult};
@@ -195,13 +195,13 @@ impl Vehicle for Simulator {
         ctx: &Context,
         files: &Files,
         out: &mut Fields<'_>,
-    ) -> Result<Step, Failure> {
+    ) -> Result<Progress, Failure> {
         let result = self.run(cmd, ctx, files, out);
         // Commands such as set_sp_ned or land end routes: settle the
         // mission bookkeeping before the next command looks at it.
         self.missions.apply(&self.flight.drain_events());
         match result {
-            Ok(()) => Ok(Step::Done),
+            Ok(()) => Ok(Progress::Done),
             Err(e) => {
                 tracing::debug!(cmd = cmd.id().name(), error = %e, "command refused");
                 Err(e.fail(out))

@@ -2,9 +2,9 @@
 //! MAVLink) is to the rest of lluavd, and what the vehicles share.
 //!
 //! - [`Vehicle`]: the flying half of the daemon's backend. It answers the
-//!   commands [`crate::onboard`] routes to the vehicle, may leave one
-//!   pending while it waits for something outside, is advanced in time and
-//!   flushed at exit.
+//!   commands [`crate::onboard`] routes to the vehicle, or hands back a
+//!   [`Wait`] that ends with the [`Reply`] when it waits for something
+//!   outside; it is advanced in time, flushed and stopped at exit.
 //! - [`Ned`] and [`Snapshot`]: positions, and what the companion computer
 //!   needs to know of the vehicle.
 //! - `Refusal` (crate-internal): an error that knows its `ret`.
@@ -21,7 +21,7 @@ use std::io;
 use std::pin::Pin;
 use std::time::Duration;
 
-use lluav_core::{Command, Context, Failure, Fields, Ret, SessionId, Step, Ticket};
+use lluav_core::{Command, Context, Failure, Fields, Ret, SessionId};
 
 use crate::files::{self, Files};
 
@@ -70,46 +70,50 @@ pub struct Snapshot {
     pub distance_m: f64,
 }
 
-/// Completes when a pending command's ticket is ready (see
-/// [`Vehicle::ready`]).
-pub type Ready = Pin<Box<dyn Future<Output = ()> + Send>>;
+/// A finished command's answer: writes its response fields, or answers
+/// its failure (as [`lluav_core::Backend::execute`] would).
+pub type Reply = Box<dyn FnOnce(&mut Fields<'_>) -> Result<(), Failure> + Send>;
+
+/// A command waiting for something outside the vehicle (an autopilot's
+/// acknowledgement): awaited with the vehicle unlocked, so other sessions
+/// are served meanwhile, it ends with the command's [`Reply`].
+pub type Wait = Pin<Box<dyn Future<Output = Reply> + Send>>;
+
+/// How far a vehicle got with a command.
+pub enum Progress {
+    /// Finished: the response fields are written.
+    Done,
+    /// Waiting; nothing is written yet.
+    Waiting(Wait),
+}
+
+impl std::fmt::Debug for Progress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Progress::Done => "Done",
+            Progress::Waiting(_) => "Waiting",
+        })
+    }
+}
 
 /// A vehicle: the flying half of the daemon's backend.
 ///
 /// It answers the commands [`crate::onboard`] gives the vehicle, with the
-/// same contract as [`lluav_core::Backend::execute`]; `files` is the
-/// companion computer's data directory, for mission files and camera
-/// output.
+/// contract of [`lluav_core::Backend::execute`]; `files` is the companion
+/// computer's data directory, for mission files and camera output.
 pub trait Vehicle: Send + 'static {
     /// Whether the motors are armed right now (the armed gate).
     fn armed(&self) -> bool;
 
     /// Carries out a command the vehicle owns, or starts it and answers
-    /// [`Step::Pending`].
+    /// [`Progress::Waiting`] with what finishes it.
     fn execute(
         &mut self,
         cmd: &Command<'_>,
         ctx: &Context,
         files: &Files,
         out: &mut Fields<'_>,
-    ) -> Result<Step, Failure>;
-
-    /// Finishes a command left pending (see [`lluav_core::Backend::finish`]).
-    fn finish(&mut self, ticket: Ticket, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
-        let _ = (ticket, ctx, out);
-        Err(Failure::unhandled())
-    }
-
-    /// A future that completes once the command `execute` left pending
-    /// with `ticket` can be finished. It is awaited with the vehicle
-    /// unlocked, so other sessions are served meanwhile; then
-    /// [`lluav_core::Server::resume`] asks for the answer. A vehicle that
-    /// never answers [`Step::Pending`] keeps the default, which is ready at
-    /// once.
-    fn ready(&mut self, ticket: Ticket) -> Ready {
-        let _ = ticket;
-        Box::pin(std::future::ready(()))
-    }
+    ) -> Result<Progress, Failure>;
 
     /// A session's connection ended.
     fn session_closed(&mut self, session: SessionId) {
@@ -137,6 +141,10 @@ pub trait Vehicle: Send + 'static {
         let _ = now_ms;
         None
     }
+
+    /// Stops whatever the vehicle runs in the background (a link's tasks);
+    /// the daemon calls it once, when it stops serving.
+    fn stop(&mut self) {}
 }
 
 /// A refusal or failure that knows its `ret` (DESIGN.md, "Errors"); its
