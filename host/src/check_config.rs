@@ -16,8 +16,9 @@ use std::process::ExitCode;
 use serde::Deserialize as _;
 use serde::de::{self, Visitor};
 
-use crate::config::{Cli, ConfigError, FileConfig, Settings};
+use crate::config::{Cli, ConfigError, FileConfig, Settings, SystemValue};
 use crate::daemon::{self, DaemonError};
+use crate::mavlink::Wanted;
 
 /// What a masked secret is printed as.
 pub const MASK: &str = "********";
@@ -124,6 +125,11 @@ pub fn effective(s: &Settings) -> FileConfig {
         data_dir: Some(s.data_dir.clone()),
         sim_speed: Some(s.sim_speed),
         mavlink: s.mavlink.clone(),
+        mavlink_system: Some(match s.mavlink_system {
+            Wanted::System(n) => SystemValue::Id(n.into()),
+            Wanted::Any => SystemValue::Name("any".into()),
+        }),
+        mavlink_signing_key: s.mavlink_signing_key.as_ref().map(|k| k.path.clone()),
         allow_no_password: Some(s.allow_no_password),
         allow_default_admin: Some(s.allow_default_admin),
         max_message: Some(l.max_message),

@@ -12,6 +12,7 @@ use std::time::Duration;
 use clap::Parser;
 use serde::{Deserialize, Serialize};
 
+use crate::mavlink::{SigningKey, Wanted};
 use crate::net::{Limits, Policy};
 
 /// The default address: loopback only, the protocol's port.
@@ -45,6 +46,14 @@ pub struct Cli {
     /// tcpout:HOST:PORT, serial:/dev/ttyACM0:57600.
     #[arg(long, value_name = "ADDRESS")]
     pub mavlink: Option<String>,
+    /// The autopilot --mavlink follows: its MAVLink system id, or `any`
+    /// for the first autopilot that heartbeats. [default: 1]
+    #[arg(long, value_name = "N|any")]
+    pub mavlink_system: Option<Wanted>,
+    /// Sign MAVLink 2 with the key in FILE (32 bytes as 64 hex digits) and
+    /// drop every message from the autopilot not signed with it.
+    #[arg(long, value_name = "FILE")]
+    pub mavlink_signing_key: Option<PathBuf>,
     /// Allow listening beyond loopback without a password.
     #[arg(long)]
     pub allow_no_password: bool,
@@ -131,6 +140,10 @@ pub struct FileConfig {
     pub sim_speed: Option<f64>,
     /// As `--mavlink`.
     pub mavlink: Option<String>,
+    /// As `--mavlink-system`: a number or `"any"`.
+    pub mavlink_system: Option<SystemValue>,
+    /// As `--mavlink-signing-key`.
+    pub mavlink_signing_key: Option<PathBuf>,
     /// As `--allow-no-password`.
     pub allow_no_password: Option<bool>,
     /// As `--allow-default-admin`.
@@ -173,6 +186,25 @@ pub struct FileConfig {
     pub logout_password: Option<String>,
 }
 
+/// `mavlink_system` in the config file: `1` or `"any"`.
+#[derive(Debug, Deserialize, Serialize)]
+#[serde(untagged)]
+pub enum SystemValue {
+    /// A system id.
+    Id(u16),
+    /// `any`.
+    Name(String),
+}
+
+/// The MAVLink signing key and the file it was read from.
+#[derive(Clone, Debug)]
+pub struct KeyFile {
+    /// The file.
+    pub path: PathBuf,
+    /// The key.
+    pub key: SigningKey,
+}
+
 /// Why the settings are unusable.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -198,6 +230,9 @@ pub enum ConfigError {
     /// A setting is out of range.
     #[error("invalid setting: {0}")]
     Invalid(&'static str),
+    /// A MAVLink setting is unusable.
+    #[error("invalid setting: {0}")]
+    Mavlink(String),
     /// An `--allow-origin` or `--allow-host` value is unusable.
     #[error("invalid setting: {0}")]
     Policy(#[from] crate::net::policy::PolicyError),
@@ -236,6 +271,10 @@ pub struct Settings {
     pub sim_speed: f64,
     /// The autopilot's MAVLink address; `None` flies the simulator.
     pub mavlink: Option<String>,
+    /// The autopilot followed.
+    pub mavlink_system: Wanted,
+    /// MAVLink 2 signing.
+    pub mavlink_signing_key: Option<KeyFile>,
     /// Whether listening beyond loopback without a password is allowed.
     pub allow_no_password: bool,
     /// Whether listening beyond loopback with the public admin value is allowed.
@@ -328,7 +367,14 @@ impl Settings {
                 "--mavlink must be udpin:HOST:PORT, udpout:HOST:PORT, tcpout:HOST:PORT or serial:DEVICE:BAUD",
             ));
         }
+        let (mavlink_system, mavlink_signing_key) = mavlink_link(
+            cli.mavlink_system,
+            file.mavlink_system,
+            cli.mavlink_signing_key.or(file.mavlink_signing_key),
+        )?;
         Ok(Settings {
+            mavlink_system,
+            mavlink_signing_key,
             bind: cli.bind.or(file.bind).unwrap_or(DEFAULT_BIND),
             password: cli.password.or(file.password),
             data_dir,
@@ -352,6 +398,25 @@ impl Settings {
             mavlink,
         })
     }
+}
+
+/// The autopilot followed and the signing key: flags over the file.
+fn mavlink_link(
+    flag: Option<Wanted>,
+    file: Option<SystemValue>,
+    key: Option<PathBuf>,
+) -> Result<(Wanted, Option<KeyFile>), ConfigError> {
+    let wanted = match (flag, file) {
+        (Some(w), _) => w,
+        (None, Some(SystemValue::Id(n))) => n.to_string().parse().map_err(ConfigError::Mavlink)?,
+        (None, Some(SystemValue::Name(s))) => s.parse().map_err(ConfigError::Mavlink)?,
+        (None, None) => Wanted::default(),
+    };
+    let key = key
+        .map(|path| SigningKey::read(&path).map(|key| KeyFile { path, key }))
+        .transpose()
+        .map_err(ConfigError::Mavlink)?;
+    Ok((wanted, key))
 }
 
 /// The connection limits: flags over the file over the defaults.
@@ -547,6 +612,46 @@ mod tests {
             FileConfig::default(),
         );
         assert!(matches!(err, Err(ConfigError::Invalid(_))));
+    }
+
+    #[test]
+    fn the_followed_autopilot_and_the_signing_key_come_from_the_flags_over_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = dir.path().join("key");
+        std::fs::write(&key, format!("{}\n", "ab".repeat(32))).unwrap();
+        let file: FileConfig = toml::from_str("mavlink_system = \"any\"").unwrap();
+        let s = Settings::merge(cli(&["--data-dir", "/tmp/x"]), file).unwrap();
+        assert_eq!(s.mavlink_system, Wanted::Any);
+        assert!(s.mavlink_signing_key.is_none());
+        let file: FileConfig = toml::from_str("mavlink_system = 3").unwrap();
+        let key_flag = key.to_str().unwrap();
+        let s = Settings::merge(
+            cli(&["--data-dir", "/tmp/x", "--mavlink-signing-key", key_flag]),
+            file,
+        )
+        .unwrap();
+        assert_eq!(s.mavlink_system, Wanted::System(3));
+        assert!(s.mavlink_signing_key.is_some());
+        let file: FileConfig = toml::from_str("mavlink_system = 3").unwrap();
+        let s = Settings::merge(cli(&["--data-dir", "/tmp/x", "--mavlink-system", "7"]), file).unwrap();
+        assert_eq!(s.mavlink_system, Wanted::System(7));
+        let s = Settings::merge(cli(&["--data-dir", "/tmp/x"]), FileConfig::default()).unwrap();
+        assert_eq!(s.mavlink_system, Wanted::System(1));
+        for bad in [
+            "mavlink_system = 0",
+            "mavlink_system = 256",
+            "mavlink_system = \"all\"",
+        ] {
+            let file: FileConfig = toml::from_str(bad).unwrap();
+            let err = Settings::merge(cli(&["--data-dir", "/tmp/x"]), file);
+            assert!(matches!(err, Err(ConfigError::Mavlink(_))), "{bad}");
+        }
+        std::fs::write(&key, "abcd").unwrap();
+        let err = Settings::merge(
+            cli(&["--data-dir", "/tmp/x", "--mavlink-signing-key", key_flag]),
+            FileConfig::default(),
+        );
+        assert!(matches!(err, Err(ConfigError::Mavlink(e)) if e.contains("64 hex digits")));
     }
 
     #[test]

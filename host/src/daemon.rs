@@ -283,12 +283,18 @@ impl Daemon<MavlinkVehicle> {
             dir: settings.data_dir.clone(),
             source,
         })?;
-        let vehicle = MavlinkVehicle::open(MavlinkConfig::new(address), SystemClock)
-            .await
-            .map_err(|source| DaemonError::Mavlink {
-                address: address.to_owned(),
-                source,
-            })?;
+        let cfg = MavlinkConfig {
+            wanted: settings.mavlink_system,
+            signing: settings.mavlink_signing_key.as_ref().map(|k| k.key.clone()),
+            ..MavlinkConfig::new(address)
+        };
+        let vehicle =
+            MavlinkVehicle::open(cfg, SystemClock)
+                .await
+                .map_err(|source| DaemonError::Mavlink {
+                    address: address.to_owned(),
+                    source,
+                })?;
         Daemon::with_vehicle(settings, Some(Onboard::new(companion, vehicle))).await
     }
 }

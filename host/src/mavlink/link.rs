@@ -1,46 +1,50 @@
 //! The link to the autopilot and the tasks that keep it alive.
 //!
-//! One [`Link`] per daemon: the connection (reconnected when a TCP or
-//! serial link fails), a broadcast feed of every message received (the
-//! protocols of [`super::protocol`] wait on it), and what lluavd knows of
-//! the autopilot ([`Known`], changed only through its methods, under
-//! [`Link::with`]). Tasks run until [`Link::stop`]: the reader (cache,
-//! counts, mission progress, the feed), our own `HEARTBEAT` at 1 Hz as an
-//! onboard computer, the setpoint stream, each time the link comes up the
-//! message rate requests, and the commands waiting for the autopilot
-//! ([`Link::spawn`]). Time is the daemon's clock, the one requests are
-//! stamped with.
+//! One [`Link`] per daemon: the transport (`transport`: lluavd's own UDP,
+//! or the crate's serial and TCP connections), a broadcast feed of the
+//! followed autopilot's messages (the protocols of [`super::protocol`]
+//! wait on it; nothing else reaches it), and what lluavd knows of the
+//! autopilot ([`Known`], changed only through its methods, under
+//! [`Link::with`]). lluavd sends only to the followed autopilot's
+//! address. Tasks run until [`Link::stop`]: the reader, our own
+//! `HEARTBEAT` at 1 Hz as an onboard computer, the setpoint stream, each
+//! time the link comes up the message rate requests, and the commands
+//! waiting for the autopilot ([`Link::spawn`]). Time is the daemon's
+//! clock, the one requests are stamped with.
 
 use std::collections::HashMap;
 use std::future::Future;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
+use ::mavlink::MavHeader;
 use ::mavlink::dialects::ardupilotmega::{
     HEARTBEAT_DATA, MavAutopilot, MavCmd, MavFrame, MavMessage, MavModeFlag, MavState, MavType,
     PositionTargetTypemask, SET_POSITION_TARGET_LOCAL_NED_DATA,
 };
-use ::mavlink::error::MessageReadError;
-use ::mavlink::{AsyncConnection, AsyncMavConnection as _, MavHeader};
 use lluav_core::Clock;
 use tokio::runtime::Handle;
 use tokio::sync::broadcast;
 use tokio::task::{AbortHandle, JoinHandle};
 use tokio::time::{Instant, MissedTickBehavior};
 
+use super::effect::Effect;
 use super::error::MavError;
+use super::follow::Wanted;
 use super::protocol::{self, Incoming, Port, Target, Timing};
-use super::state::Known;
+use super::signing::SigningKey;
+use super::state::{Known, Receipt};
+use super::transport::{Packet, Transport};
 
 /// `MAV_COMP_ID_ONBOARD_COMPUTER`: lluavd's component id.
 pub const OWN_COMPONENT: u8 = 191;
 /// How often the active setpoint is re-sent: well above the 2 Hz PX4
 /// needs to stay in offboard.
 pub const SETPOINT_PERIOD: Duration = Duration::from_millis(100);
-/// How long to wait before reconnecting a failed link.
-const RECONNECT_DELAY: Duration = Duration::from_secs(1);
 /// Messages buffered for slow protocol waiters.
 const FEED_CAPACITY: usize = 1024;
+/// How often dropped foreign packets are reported in the log, heartbeats.
+const FOREIGN_REPORT_EVERY: u32 = 10;
 /// `SET_POSITION_TARGET_LOCAL_NED`: position and yaw; velocity,
 /// acceleration and yaw rate ignored.
 const POSITION_AND_YAW: PositionTargetTypemask = PositionTargetTypemask::from_bits_truncate(
@@ -66,15 +70,28 @@ const RATES: [(u32, f32); 8] = [
 /// `AUTOPILOT_VERSION`, asked for once per link-up.
 const AUTOPILOT_VERSION_ID: f32 = 148.0;
 
-type Conn = AsyncConnection<MavMessage>;
-
 /// The daemon's clock.
 pub type SharedClock = Arc<dyn Clock + Send + Sync>;
+
+/// How the link is opened.
+#[derive(Clone, Debug)]
+pub struct LinkConfig {
+    /// The `mavlink` crate's address.
+    pub address: String,
+    /// The protocols' timeouts and retries.
+    pub timing: Timing,
+    /// lluavd's system id; `None` takes the autopilot's.
+    pub own_system: Option<u8>,
+    /// The autopilot followed.
+    pub wanted: Wanted,
+    /// MAVLink 2 signing.
+    pub signing: Option<SigningKey>,
+}
 
 /// The link to the autopilot.
 pub struct Link {
     address: String,
-    conn: Mutex<Option<Arc<Conn>>>,
+    transport: Transport,
     feed: broadcast::Sender<Arc<Incoming>>,
     known: Mutex<Known>,
     locks: Mutex<HashMap<u32, Arc<tokio::sync::Mutex<()>>>>,
@@ -93,34 +110,21 @@ fn unpoison<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
-async fn connect(address: &str) -> std::io::Result<Conn> {
-    let mut conn = ::mavlink::connect_async::<MavMessage>(address).await?;
-    // ArduPilot on a serial port speaks MAVLink 1 until it hears MAVLink 2.
-    conn.set_allow_recv_any_version(true);
-    Ok(conn)
-}
-
 impl Link {
-    /// Connects to `address` (the `mavlink` crate's syntax) and starts
-    /// the link's tasks on the current tokio runtime; `clock` is the
-    /// daemon's. Fails if the first connection cannot be made (a bad
-    /// address, a port in use, no such serial device); later failures are
-    /// reconnected.
-    pub async fn open(
-        address: &str,
-        timing: Timing,
-        own_system: Option<u8>,
-        clock: SharedClock,
-    ) -> std::io::Result<Arc<Link>> {
-        let conn = connect(address).await?;
+    /// Opens the transport and starts the link's tasks on the current
+    /// tokio runtime; `clock` is the daemon's. Fails if the transport
+    /// cannot be opened (a bad address, a port in use, no such serial
+    /// device); a serial or TCP link that fails later is reconnected.
+    pub async fn open(cfg: LinkConfig, clock: SharedClock) -> std::io::Result<Arc<Link>> {
+        let transport = Transport::open(&cfg.address, cfg.signing.as_ref()).await?;
         let link = Arc::new(Link {
-            address: address.to_owned(),
-            conn: Mutex::new(Some(Arc::new(conn))),
+            address: cfg.address,
+            transport,
             feed: broadcast::channel(FEED_CAPACITY).0,
-            known: Mutex::new(Known::default()),
+            known: Mutex::new(Known::new(cfg.wanted)),
             locks: Mutex::new(HashMap::new()),
-            timing,
-            own_system,
+            timing: cfg.timing,
+            own_system: cfg.own_system,
             clock,
             runtime: Handle::current(),
             tasks: Mutex::new(Vec::new()),
@@ -129,7 +133,7 @@ impl Link {
         link.spawn(read_loop(Arc::clone(&link)));
         link.spawn(heartbeat_loop(Arc::clone(&link)));
         link.spawn(setpoint_loop(Arc::clone(&link)));
-        tracing::info!(address, "MAVLink link open");
+        tracing::info!(address = %link.address, signed = cfg.signing.is_some(), "MAVLink link open");
         Ok(link)
     }
 
@@ -163,14 +167,13 @@ impl Link {
         for task in unpoison(&self.tasks).drain(..) {
             task.abort();
         }
-        *unpoison(&self.conn) = None;
         tracing::info!(address = %self.address, "MAVLink link stopped");
     }
 
     fn header(&self) -> MavHeader {
         let system = self
             .own_system
-            .or_else(|| self.with(|k| k.tel().target()).map(|t| t.system))
+            .or_else(|| self.with(|k| k.target()).map(|t| t.system))
             .unwrap_or(1);
         MavHeader {
             system_id: system.into(),
@@ -179,36 +182,43 @@ impl Link {
         }
     }
 
-    /// Runs `cmd` with the command protocol; commands with the same id
+    /// Runs `cmd` with the command protocol; a lost acknowledgement is
+    /// resolved by `effect` in the telemetry. Commands with the same id
     /// wait for each other (an ACK names only the command).
-    pub async fn command(&self, cmd: MavCmd, params: [f32; 7]) -> Result<(), MavError> {
+    pub async fn command(
+        &self,
+        cmd: MavCmd,
+        params: [f32; 7],
+        effect: Option<Effect>,
+    ) -> Result<(), MavError> {
         let lock = Arc::clone(unpoison(&self.locks).entry(cmd as u32).or_default());
         let _turn = lock.lock().await;
         let timing = self.timing;
-        protocol::command(self, &timing, cmd, params).await
+        protocol::command(self, &timing, cmd, params, effect).await
     }
 
-    /// Takes in one received message.
-    fn receive(self: &Arc<Self>, header: MavHeader, msg: MavMessage) {
+    /// Takes in one received packet: the followed autopilot's reach the
+    /// cache and the feed, nobody else's.
+    fn receive(self: &Arc<Self>, packet: Packet) {
         let now = self.now_ms();
-        let came_up = self.with(|k| k.observe(&header, &msg, now));
+        let Packet { from, header, msg } = packet;
+        match self.with(|k| k.receive(from, &header, &msg, now)) {
+            Receipt::Dropped => return,
+            Receipt::Kept => {}
+            Receipt::LinkUp => {
+                tracing::info!("MAVLink link up");
+                self.spawn(request_rates(Arc::clone(self)));
+            }
+        }
         // No receiver is fine: nobody waits for the autopilot right now.
         let _ = self.feed.send(Arc::new(Incoming { header, msg }));
-        if came_up {
-            tracing::info!("MAVLink link up");
-            self.spawn(request_rates(Arc::clone(self)));
-        }
     }
 }
 
 impl Port for Link {
     async fn send(&self, msg: MavMessage) -> Result<(), MavError> {
-        let conn = unpoison(&self.conn).clone();
-        let conn = conn.ok_or_else(|| MavError::Send(format!("not connected to {}", self.address)))?;
-        conn.send(&self.header(), &msg)
-            .await
-            .map(|_| ())
-            .map_err(|e| MavError::Send(e.to_string()))
+        let to = self.with(|k| k.peer());
+        self.transport.send(to, self.header(), &msg).await
     }
 
     fn subscribe(&self) -> broadcast::Receiver<Arc<Incoming>> {
@@ -216,32 +226,19 @@ impl Port for Link {
     }
 
     fn target(&self) -> Result<Target, MavError> {
-        self.with(|k| k.tel().target())
+        self.with(|k| k.target())
             .ok_or_else(|| MavError::LinkLost("no autopilot heartbeat yet".into()))
     }
 }
 
-/// Reads everything, reconnecting when the connection fails.
+/// Reads everything.
 async fn read_loop(link: Arc<Link>) {
     loop {
-        let conn = unpoison(&link.conn).clone();
-        let Some(conn) = conn else {
-            tokio::time::sleep(RECONNECT_DELAY).await;
-            match connect(&link.address).await {
-                Ok(c) => {
-                    tracing::info!(address = %link.address, "MAVLink reconnected");
-                    *unpoison(&link.conn) = Some(Arc::new(c));
-                }
-                Err(e) => tracing::debug!(error = %e, "MAVLink reconnect failed"),
-            }
-            continue;
-        };
-        match conn.recv().await {
-            Ok((header, msg)) => link.receive(header, msg),
-            Err(MessageReadError::Parse(e)) => tracing::debug!(error = %e, "MAVLink frame dropped"),
-            Err(MessageReadError::Io(e)) => {
-                tracing::warn!(error = %e, address = %link.address, "MAVLink connection failed; reconnecting");
-                *unpoison(&link.conn) = None;
+        match link.transport.recv().await {
+            Ok(packets) => packets.into_iter().for_each(|p| link.receive(p)),
+            Err(e) => {
+                tracing::warn!(error = %e, address = %link.address, "MAVLink receive failed");
+                tokio::time::sleep(Duration::from_secs(1)).await;
             }
         }
     }
@@ -251,8 +248,14 @@ async fn read_loop(link: Arc<Link>) {
 async fn heartbeat_loop(link: Arc<Link>) {
     let mut every = tokio::time::interval(Duration::from_secs(1));
     every.set_missed_tick_behavior(MissedTickBehavior::Delay);
-    loop {
+    for beat in 1u32.. {
         every.tick().await;
+        if beat % FOREIGN_REPORT_EVERY == 0 {
+            let foreign = link.with(Known::take_foreign);
+            if foreign > 0 {
+                tracing::info!(foreign, "packets not from the followed autopilot dropped");
+            }
+        }
         let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
             custom_mode: 0,
             mavtype: MavType::MAV_TYPE_ONBOARD_CONTROLLER,
@@ -273,7 +276,7 @@ async fn setpoint_loop(link: Arc<Link>) {
     every.set_missed_tick_behavior(MissedTickBehavior::Delay);
     loop {
         every.tick().await;
-        let (pose, target) = link.with(|k| (k.setpoint(), k.tel().target()));
+        let (pose, target) = link.with(|k| (k.setpoint(), k.target()));
         let (Some(p), Some(t)) = (pose, target) else {
             continue;
         };
@@ -307,12 +310,15 @@ async fn request_rates(link: Arc<Link>) {
     let mut refused = Vec::new();
     for (id, hz) in RATES {
         let params = [id as f32, 1e6 / hz, 0.0, 0.0, 0.0, 0.0, 0.0];
-        if let Err(e) = link.command(MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL, params).await {
+        if let Err(e) = link
+            .command(MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL, params, None)
+            .await
+        {
             refused.push(format!("{id}: {e}"));
         }
     }
     let version = [AUTOPILOT_VERSION_ID, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
-    if let Err(e) = link.command(MavCmd::MAV_CMD_REQUEST_MESSAGE, version).await {
+    if let Err(e) = link.command(MavCmd::MAV_CMD_REQUEST_MESSAGE, version, None).await {
         refused.push(format!("AUTOPILOT_VERSION: {e}"));
     }
     if refused.is_empty() {

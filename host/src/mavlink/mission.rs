@@ -118,6 +118,13 @@ impl Missions {
         });
     }
 
+    /// Another vehicle: it holds none of lluavd's missions and flies no
+    /// run. The submitted missions stay, to be uploaded again.
+    pub fn new_vehicle(&mut self) {
+        self.on_autopilot = None;
+        self.run = None;
+    }
+
     /// The run did not start after all.
     pub fn drop_run(&mut self) {
         self.run = None;

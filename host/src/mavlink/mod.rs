@@ -18,14 +18,14 @@
 //! | command | MAVLink |
 //! |---|---|
 //! | `state` | the cache: `armed` (heartbeat), `fsm` (from armed, `EXTENDED_SYS_STATE` and the mode), `position`/`velocity` (`LOCAL_POSITION_NED`), `yaw` (`ATTITUDE`), `altitude` (`GLOBAL_POSITION_INT.relative_alt`), `battery` (`BATTERY_STATUS`/`SYS_STATUS`), `setpoint` (the streamed one or null), `home` (`HOME_POSITION`, local), plus `link` (`up`/`lost`), `heartbeat_age_ms`, `autopilot`, `mode`, `landed`, `global`, `home_global`, `mission` (the run's progress) |
-//! | `takeoff` | ArduPilot: `DO_SET_MODE` GUIDED; then `COMPONENT_ARM_DISARM` (arm), `NAV_TAKEOFF` to the configured altitude above home (disarms again if refused) |
+//! | `takeoff` | ArduPilot: `DO_SET_MODE` GUIDED; then `COMPONENT_ARM_DISARM` (arm), `NAV_TAKEOFF` to the configured altitude above home (disarms again if the autopilot refuses it; never when its acknowledgement is lost); once it answers 0, `fsm` is `takeoff` and the vehicle counts as flying until the telemetry shows the climb (at most 10 s) |
 //! | `land` | `NAV_LAND` |
 //! | `rtl` | `NAV_RETURN_TO_LAUNCH` |
 //! | `mrtl` | ArduPilot: `DO_SET_MODE` SMART_RTL; PX4: not supported (-2) |
 //! | `disarm` | `COMPONENT_ARM_DISARM` with the force flag (21196): motors stop, in the air too |
 //! | `set_sp_ned` | in the air only (-1 `Vehicle is not flying`): `SET_POSITION_TARGET_LOCAL_NED` (`MAV_FRAME_LOCAL_NED`, position + yaw) re-sent at 10 Hz, then `DO_SET_MODE` OFFBOARD (PX4) / GUIDED (ArduPilot) unless already in it; streaming stops when no session that set it is connected, or on `disarm`/`mw_exec` |
-//! | `mission` | mission upload (`MISSION_COUNT`, `MISSION_REQUEST_INT`, `MISSION_ITEM_INT`, `MISSION_ACK`) of `NAV_WAYPOINT`s, NED converted to global from `HOME_POSITION` (altitude relative to home; ArduPilot's item 0 is home) |
-//! | `mw_exec` | in the air only: uploads the chosen waypoints unless they are what the autopilot holds, `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
+//! | `mission` | mission upload (`MISSION_COUNT`, `MISSION_REQUEST_INT`, `MISSION_ITEM_INT`, `MISSION_ACK`) of `NAV_WAYPOINT`s, NED converted to global from `HOME_POSITION` (altitude relative to home; ArduPilot's item 0 is home); a lost final `MISSION_ACK` is resolved by reading the mission count back (`MISSION_REQUEST_LIST`); requests past the end are ignored; nothing is ever cancelled |
+//! | `mw_exec` | in the air only: uploads the chosen waypoints unless they are what this autopilot holds (a new or rebooted autopilot holds none of them), `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
 //! | `mw_list`, `dump_missionresult` | the missions lluavd uploaded and the run's progress |
 //! | `param` | `PARAM_REQUEST_LIST`, missing indices read one by one |
 //! | `get_param`, `set_param` | `PARAM_REQUEST_READ` / `PARAM_SET` / `PARAM_VALUE` (integers bytewise on PX4, cast on ArduPilot, or as `AUTOPILOT_VERSION` announces) |
@@ -38,10 +38,28 @@
 //! | `show_sp`, `statics`, `hud1` | the streamed setpoint; link statistics; ENU position |
 //! | everything else the vehicle owns (`tether_land`, `sleep`, `wakeup`, `autosleep_enable`, `zyhk`, `relocate_pos`, `tunnelfly`, `plan`, `ai1_mission`, LED, apron, lidar, BMS, UTG, grabber, other SIYI commands, ...) | -2 `Invalid arguments: not supported by this vehicle` |
 //!
-//! A refused `COMMAND_ACK` answers -1 with the `MAV_RESULT` name; no
-//! answer after the retries, or a lost link (no heartbeat for 3 s),
-//! answers -3. The companion computer's commands (files, logs, the
-//! machine) are answered by [`crate::companion`] as with the simulator.
+//! A refused `COMMAND_ACK` answers -1 with the `MAV_RESULT` name. No
+//! answer after the retries is resolved from the telemetry when the
+//! command shows in it (`effect`: armed flag, mode, landed state): 0 if
+//! it happened, -3 if not or nothing says; a lost link (no heartbeat for
+//! 3 s) answers -3. lluavd never sends a command no client asked for to
+//! clean up after a timeout. The companion computer's commands (files,
+//! logs, the machine) are answered by [`crate::companion`] as with the
+//! simulator.
+//!
+//! # The radio link
+//!
+//! lluavd follows one autopilot (`follow`): the system of
+//! `--mavlink-system` (default 1, or `any`), component 1, from the
+//! address its heartbeat came from; every other packet is dropped before
+//! any cache, and lluavd sends only to that address (`transport`: its own
+//! UDP, each datagram parsed with its sender). After a loss it acquires
+//! again by the same rule; the same autopilot back is the same vehicle, a
+//! different or rebooted one (its boot time went back) is a new vehicle
+//! and what lluavd knew of the old one is forgotten (`state`): no
+//! setpoint streams until a client sends one, no mission is on it.
+//! `--mavlink-signing-key` signs everything sent with MAVLink 2 signing
+//! and drops whatever is not signed with the key (`signing`).
 //!
 //! # What was tested against what
 //!
@@ -61,14 +79,18 @@
 
 mod answer;
 pub mod autopilot;
+mod effect;
 mod error;
+mod follow;
 pub mod geo;
 mod link;
 mod mission;
 mod ops;
 pub mod protocol;
+mod signing;
 mod state;
 mod telemetry;
+mod transport;
 
 use std::io;
 use std::sync::Arc;
@@ -78,15 +100,19 @@ use ::mavlink::dialects::ardupilotmega::MavCmd;
 use lluav_core::{Args, Clock, Command, CommandId, Context, Failure, Fields, Payload, SessionId};
 
 pub use error::MavError;
+pub use follow::Wanted;
 pub use protocol::Timing;
+pub use signing::SigningKey;
 
 use crate::files::Files;
 use crate::vehicle::mission::{self as mission_json, Fence};
 use crate::vehicle::{Ned, Progress, Refusal, Reply, Snapshot, Vehicle};
 use answer::{Answer, Captured, Rebooting, Recording, Saved};
-use autopilot::{Flavour, Mode};
-use link::Link;
+use autopilot::{Flavour, Mode, Phase};
+use effect::Effect;
+use link::{Link, LinkConfig};
 use mission::{Mission, Waypoint};
+use ops::Then;
 use state::Known;
 
 /// Largest mission file a client may point at, bytes.
@@ -107,6 +133,10 @@ pub struct MavlinkConfig {
     /// lluavd's MAVLink system id; `None` takes the autopilot's (the
     /// companion-computer convention).
     pub own_system: Option<u8>,
+    /// The autopilot followed (`--mavlink-system`).
+    pub wanted: Wanted,
+    /// MAVLink 2 signing (`--mavlink-signing-key`).
+    pub signing: Option<SigningKey>,
 }
 
 impl MavlinkConfig {
@@ -117,6 +147,8 @@ impl MavlinkConfig {
             timing: Timing::default(),
             takeoff_alt: DEFAULT_TAKEOFF_ALT,
             own_system: None,
+            wanted: Wanted::default(),
+            signing: None,
         }
     }
 }
@@ -141,7 +173,14 @@ impl MavlinkVehicle {
         cfg: MavlinkConfig,
         clock: impl Clock + Send + Sync + 'static,
     ) -> io::Result<MavlinkVehicle> {
-        let link = Link::open(&cfg.address, cfg.timing, cfg.own_system, Arc::new(clock)).await?;
+        let link_cfg = LinkConfig {
+            address: cfg.address,
+            timing: cfg.timing,
+            own_system: cfg.own_system,
+            wanted: cfg.wanted,
+            signing: cfg.signing,
+        };
+        let link = Link::open(link_cfg, Arc::new(clock)).await?;
         Ok(MavlinkVehicle {
             link,
             takeoff_alt: cfg.takeoff_alt,
@@ -178,53 +217,60 @@ impl MavlinkVehicle {
 
     /// The flavour, if the link is up now; else -3.
     fn link_up(&self, ctx: &Context) -> Result<Flavour, MavError> {
-        self.link.with(|k| {
-            let tel = k.tel();
-            match (tel.link_up(ctx.now_ms), tel.flavour()) {
+        self.link
+            .with(|k| match (k.link_up(ctx.now_ms), k.tel().flavour()) {
                 (true, Some(f)) => Ok(f),
-                _ => Err(MavError::LinkLost(match tel.heartbeat_age_ms(ctx.now_ms) {
+                _ => Err(MavError::LinkLost(match k.heartbeat_age_ms(ctx.now_ms) {
                     Some(age) => format!("no heartbeat from the autopilot for {:.1} s", age as f64 / 1000.0),
                     None => "no heartbeat from the autopilot yet".into(),
                 })),
-            }
-        })
+            })
     }
 
     /// The flavour, if the link is up and the vehicle flies; else -3/-1.
     fn flying(&self, ctx: &Context) -> Result<Flavour, MavError> {
         let flavour = self.link_up(ctx)?;
-        if self.link.with(|k| k.tel().airborne()) {
+        if self.link.with(|k| k.airborne(ctx.now_ms)) {
             Ok(flavour)
         } else {
             Err(MavError::not_flying())
         }
     }
 
-    /// Sends `cmd` when the link is up; `then` answers it once
-    /// acknowledged.
+    /// Sends `cmd` when the link is up; `then` answers it once done.
+    /// Nothing the telemetry shows tells whether it happened when its
+    /// acknowledgement is lost.
     fn command<A: Answer>(
         &self,
         id: CommandId,
         ctx: &Context,
         cmd: MavCmd,
         params: [f32; 7],
-        then: impl FnOnce(&mut Known) -> A + Send + 'static,
+        then: impl Then<A>,
     ) -> Result<Progress, MavError> {
         self.link_up(ctx)?;
-        Ok(self.pend(id, ops::command(Arc::clone(&self.link), cmd, params, then)))
+        Ok(self.pend(id, ops::command(Arc::clone(&self.link), cmd, params, None, then)))
     }
 
-    /// A flight command for a flying vehicle: the setpoint stream stops.
+    /// A flight command for a flying vehicle whose `effect` the telemetry
+    /// shows: the setpoint stream stops.
     fn redirect(
         &self,
         id: CommandId,
         ctx: &Context,
-        cmd: MavCmd,
-        params: [f32; 7],
+        (cmd, params): (MavCmd, [f32; 7]),
+        effect: impl FnOnce(Flavour) -> Effect,
     ) -> Result<Progress, MavError> {
-        self.flying(ctx)?;
+        let flavour = self.flying(ctx)?;
         self.link.with(Known::stop_stream);
-        self.command(id, ctx, cmd, params, ops::acknowledged)
+        let op = ops::command(
+            Arc::clone(&self.link),
+            cmd,
+            params,
+            Some(effect(flavour)),
+            ops::acknowledged,
+        );
+        Ok(self.pend(id, op))
     }
 
     fn run(
@@ -248,17 +294,20 @@ impl MavlinkVehicle {
                 Ok(self.pend(cmd.id(), ops::takeoff(link, flavour, self.takeoff_alt)))
             }
             (C::Land, _) => {
-                let params = [0.0, 0.0, 0.0, nan, nan, nan, nan];
-                self.redirect(cmd.id(), ctx, MavCmd::MAV_CMD_NAV_LAND, params)
+                let land = (MavCmd::MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, nan, nan, nan, nan]);
+                self.redirect(cmd.id(), ctx, land, Effect::Landing)
             }
-            (C::Rtl, _) => self.redirect(cmd.id(), ctx, MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH, [0.0; 7]),
+            (C::Rtl, _) => {
+                let rtl = (MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH, [0.0; 7]);
+                self.redirect(cmd.id(), ctx, rtl, |f| Effect::Phase(f, Phase::Rtl))
+            }
             (C::Mrtl, _) => {
                 let flavour = self.flying(ctx)?;
                 let [p1, p2, p3] = flavour
                     .set_mode_params(Mode::SmartRtl)
                     .ok_or(MavError::Unsupported)?;
-                let params = [p1, p2, p3, 0.0, 0.0, 0.0, 0.0];
-                self.redirect(cmd.id(), ctx, MavCmd::MAV_CMD_DO_SET_MODE, params)
+                let smart_rtl = (MavCmd::MAV_CMD_DO_SET_MODE, [p1, p2, p3, 0.0, 0.0, 0.0, 0.0]);
+                self.redirect(cmd.id(), ctx, smart_rtl, |f| Effect::Mode(f, Mode::SmartRtl))
             }
             (C::Disarm, _) => {
                 self.link_up(ctx)?;
@@ -298,22 +347,22 @@ impl MavlinkVehicle {
             (C::SaveParam, &Args::Flag(save)) => {
                 let what = if save { 1.0 } else { 0.0 };
                 let params = [what, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
-                self.command(id, ctx, storage, params, move |_| Saved(save))
+                self.command(id, ctx, storage, params, move |_, _| Saved(save))
             }
             (C::ResetParam, _) => {
                 let params = [2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
-                self.command(id, ctx, storage, params, |_| Saved(false))
+                self.command(id, ctx, storage, params, |_, _| Saved(false))
             }
             (C::RebootAp, _) => {
                 let params = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
                 let reboot = MavCmd::MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN;
-                self.command(id, ctx, reboot, params, |_| Rebooting)
+                self.command(id, ctx, reboot, params, |_, _| Rebooting)
             }
             (C::Capture, _) => {
                 let seq = self.link.with(|k| k.images()).wrapping_add(1);
                 let params = [0.0, 0.0, 1.0, seq as f32, 0.0, 0.0, 0.0];
                 let capture = MavCmd::MAV_CMD_IMAGE_START_CAPTURE;
-                self.command(id, ctx, capture, params, |k| Captured(k.count_image()))
+                self.command(id, ctx, capture, params, |k, _| Captured(k.count_image()))
             }
             (C::Record, _) => {
                 let start = !self.link.with(|k| k.recording());
@@ -322,7 +371,7 @@ impl MavlinkVehicle {
                 } else {
                     MavCmd::MAV_CMD_VIDEO_STOP_CAPTURE
                 };
-                self.command(id, ctx, what, [0.0; 7], move |k| {
+                self.command(id, ctx, what, [0.0; 7], move |k, _| {
                     k.set_recording(start);
                     Recording(start)
                 })
@@ -355,7 +404,7 @@ impl MavlinkVehicle {
                 .is_some_and(|m| flavour.is_mode(m, Mode::Guided))
         });
         if in_mode {
-            self.link.with(|k| k.write_setpoint(out));
+            self.link.with(|k| k.write_setpoint(ctx.now_ms, out));
             Ok(Progress::Done)
         } else {
             let op = ops::follow_setpoints(Arc::clone(&self.link), flavour);
@@ -431,10 +480,10 @@ fn report(k: &Known, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> 
     let tel = k.tel();
     match (cmd.id(), cmd.args()) {
         (C::MavlinkMsgs, _) => tel.write_counts(out),
-        (C::ShowSp, _) => k.write_setpoint(out),
+        (C::ShowSp, _) => k.write_setpoint(ctx.now_ms, out),
         (C::Statics, _) => {
             out.object("comm", |o| {
-                o.bool("mavlink", tel.link_up(ctx.now_ms))
+                o.bool("mavlink", k.link_up(ctx.now_ms))
                     .u64("mavlink_msgs", tel.total_messages());
             });
             out.object("stat", |o| {
@@ -446,7 +495,7 @@ fn report(k: &Known, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> 
             // ENU: x east, y north, z up.
             out.object("uav_pos_enu", |o| Ned::new(p.y, p.x, -p.z).write(o));
             out.object("extra", |o| {
-                o.str("fsm", tel.fsm());
+                o.str("fsm", k.fsm(ctx.now_ms));
                 match tel.yaw() {
                     Some(y) => o.f32("yaw", y),
                     None => o.null("yaw"),
@@ -498,6 +547,7 @@ impl Vehicle for MavlinkVehicle {
     }
 
     fn snapshot(&self) -> Snapshot {
+        let now = self.link.now_ms();
         self.link.with(|k| {
             let tel = k.tel();
             Snapshot {
@@ -505,7 +555,7 @@ impl Vehicle for MavlinkVehicle {
                 time_s: tel.boot_s(),
                 position: tel.position().unwrap_or_default(),
                 yaw: tel.yaw().map_or(0.0, f64::from),
-                fsm: tel.fsm(),
+                fsm: k.fsm(now),
                 distance_m: tel.distance_m(),
             }
         })
@@ -514,7 +564,7 @@ impl Vehicle for MavlinkVehicle {
     fn tick(&mut self, _dt: Duration) {}
 
     fn link_up(&self, now_ms: i64) -> Option<bool> {
-        Some(self.link.with(|k| k.tel().link_up(now_ms)))
+        Some(self.link.with(|k| k.link_up(now_ms)))
     }
 
     fn stop(&mut self) {

@@ -11,7 +11,8 @@ use ::mavlink::dialects::ardupilotmega::MISSION_SET_CURRENT_DATA;
 use ::mavlink::dialects::ardupilotmega::{MISSION_ITEM_INT_DATA, MavCmd, MavMessage};
 
 use super::answer::{Acknowledged, Answer, Disarmed, Following, Param, Params, Started, TookOff, Uploaded};
-use super::autopilot::{self, Flavour, Mode, ParamValue};
+use super::autopilot::{self, Flavour, Mode, ParamValue, Phase};
+use super::effect::Effect;
 use super::error::MavError;
 use super::link::{Link, SETPOINT_PERIOD};
 use super::mission::{Mission, OnAutopilot};
@@ -21,42 +22,60 @@ use super::state::Known;
 /// `MAV_CMD_COMPONENT_ARM_DISARM` param 2 that forces a disarm.
 const FORCE_DISARM: f32 = 21196.0;
 
-/// Runs `cmd` with the command protocol; once acknowledged, `then`
-/// records what it changed and makes the answer.
+/// What a command changed, recorded once it is done; `then` makes the
+/// answer from what lluavd knows at that time (`now_ms`).
+pub trait Then<A>: FnOnce(&mut Known, i64) -> A + Send + 'static {}
+
+impl<A, F: FnOnce(&mut Known, i64) -> A + Send + 'static> Then<A> for F {}
+
+/// Runs `cmd` with the command protocol (a lost acknowledgement resolved
+/// by `effect`); once done, `then` records what it changed and makes the
+/// answer.
 pub async fn command<A: Answer>(
     link: Arc<Link>,
     cmd: MavCmd,
     params: [f32; 7],
-    then: impl FnOnce(&mut Known) -> A + Send,
+    effect: Option<Effect>,
+    then: impl Then<A>,
 ) -> Result<A, MavError> {
-    link.command(cmd, params).await?;
-    Ok(link.with(then))
+    link.command(cmd, params, effect).await?;
+    let now = link.now_ms();
+    Ok(link.with(|k| then(k, now)))
 }
 
 /// The answer of a command whose response is the state it left.
-pub fn acknowledged(known: &mut Known) -> Acknowledged {
+pub fn acknowledged(known: &mut Known, now_ms: i64) -> Acknowledged {
     Acknowledged {
-        fsm: known.tel().fsm(),
+        fsm: known.fsm(now_ms),
     }
 }
 
 /// Switches the flight mode.
 pub async fn set_mode(link: &Link, flavour: Flavour, mode: Mode) -> Result<(), MavError> {
     let [p1, p2, p3] = flavour.set_mode_params(mode).ok_or(MavError::Unsupported)?;
-    link.command(MavCmd::MAV_CMD_DO_SET_MODE, [p1, p2, p3, 0.0, 0.0, 0.0, 0.0])
-        .await
+    let params = [p1, p2, p3, 0.0, 0.0, 0.0, 0.0];
+    link.command(
+        MavCmd::MAV_CMD_DO_SET_MODE,
+        params,
+        Some(Effect::Mode(flavour, mode)),
+    )
+    .await
 }
 
 /// Arms and takes off to `alt` metres above home. ArduPilot is put in
-/// GUIDED first. A refused takeoff disarms again rather than leave an
-/// armed vehicle on the ground.
+/// GUIDED first. A takeoff the autopilot refuses disarms again rather
+/// than leave an armed vehicle on the ground; one whose acknowledgement
+/// never came is left alone (the vehicle may be climbing). Once it
+/// answers 0, the vehicle counts as flying.
 pub async fn takeoff(link: Arc<Link>, flavour: Flavour, alt: f32) -> Result<TookOff, MavError> {
     if flavour == Flavour::ArduPilot {
         set_mode(&link, flavour, Mode::Guided).await?;
     }
+    let arm = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
     link.command(
         MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
-        [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        arm,
+        Some(Effect::Armed(true)),
     )
     .await?;
     // PX4 takes the takeoff altitude above mean sea level; ArduPilot above
@@ -68,14 +87,27 @@ pub async fn takeoff(link: Arc<Link>, flavour: Flavour, alt: f32) -> Result<Took
     };
     let nan = f32::NAN;
     let params = [0.0, 0.0, 0.0, nan, nan, nan, param7];
-    if let Err(e) = link.command(MavCmd::MAV_CMD_NAV_TAKEOFF, params).await {
-        let disarm = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
-        if let Err(again) = link.command(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, disarm).await {
-            tracing::warn!(error = %again, "could not disarm after a refused takeoff");
+    let airborne = Some(Effect::Airborne(flavour));
+    match link.command(MavCmd::MAV_CMD_NAV_TAKEOFF, params, airborne).await {
+        Ok(()) => {
+            let now = link.now_ms();
+            link.with(|k| k.took_off(now));
+            Ok(TookOff { target_alt: alt })
         }
-        return Err(e);
+        Err(refused @ MavError::Refused { .. }) => {
+            // The autopilot said no: the vehicle is armed on the ground.
+            let disarm = [0.0; 7];
+            let disarmed = Some(Effect::Armed(false));
+            if let Err(e) = link
+                .command(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, disarm, disarmed)
+                .await
+            {
+                tracing::warn!(error = %e, "could not disarm after a refused takeoff");
+            }
+            Err(refused)
+        }
+        Err(e) => Err(e),
     }
-    Ok(TookOff { target_alt: alt })
 }
 
 /// Disarms at once, in the air too (the protocol's `disarm` is a force
@@ -83,7 +115,18 @@ pub async fn takeoff(link: Arc<Link>, flavour: Flavour, alt: f32) -> Result<Took
 pub async fn disarm(link: Arc<Link>) -> Result<Disarmed, MavError> {
     link.with(Known::stop_stream);
     let params = [0.0, FORCE_DISARM, 0.0, 0.0, 0.0, 0.0, 0.0];
-    command(link, MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, params, |_| Disarmed).await
+    let disarmed = Some(Effect::Armed(false));
+    command(
+        link,
+        MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+        params,
+        disarmed,
+        |k, _| {
+            k.disarmed();
+            Disarmed
+        },
+    )
+    .await
 }
 
 /// Puts the autopilot in the mode that follows the (already streaming)
@@ -92,7 +135,10 @@ pub async fn follow_setpoints(link: Arc<Link>, flavour: Flavour) -> Result<Follo
     // PX4 refuses offboard unless setpoints already arrive: let a few go.
     tokio::time::sleep(SETPOINT_PERIOD * 3).await;
     match set_mode(&link, flavour, Mode::Guided).await {
-        Ok(()) => Ok(link.with(|k| k.following())),
+        Ok(()) => {
+            let now = link.now_ms();
+            Ok(link.with(|k| k.following(now)))
+        }
         Err(e) => {
             link.with(Known::stop_stream);
             Err(e)
@@ -147,7 +193,13 @@ pub async fn exec(
         k.stop_stream();
         k.missions_mut().start_run(plan);
     });
-    if let Err(e) = link.command(MavCmd::MAV_CMD_MISSION_START, [0.0; 7]).await {
+    let flying = link
+        .with(|k| k.tel().flavour())
+        .map(|f| Effect::Phase(f, Phase::Mission));
+    if let Err(e) = link
+        .command(MavCmd::MAV_CMD_MISSION_START, [0.0; 7], flying)
+        .await
+    {
         link.with(|k| k.missions_mut().drop_run());
         return Err(e);
     }

@@ -11,13 +11,14 @@ use std::time::Duration;
 
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::ardupilotmega::{
-    COMMAND_LONG_DATA, MISSION_ACK_DATA, MISSION_COUNT_DATA, MISSION_ITEM_INT_DATA, MavCmd, MavMessage,
-    MavMissionResult, MavParamError, MavParamType, MavResult, PARAM_REQUEST_LIST_DATA,
-    PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA,
+    COMMAND_LONG_DATA, MISSION_ACK_DATA, MISSION_COUNT_DATA, MISSION_ITEM_INT_DATA,
+    MISSION_REQUEST_LIST_DATA, MavCmd, MavMessage, MavMissionResult, MavParamError, MavParamType, MavResult,
+    PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA,
 };
 use tokio::sync::broadcast::{self, error::RecvError};
 use tokio::time::Instant;
 
+use super::effect::Effect;
 use super::error::MavError;
 
 /// A message the link received.
@@ -40,7 +41,7 @@ pub struct Target {
 
 impl Target {
     /// Whether `header` is this autopilot's.
-    fn sent(self, header: &MavHeader) -> bool {
+    pub(super) fn sent(self, header: &MavHeader) -> bool {
         header.system_id == u32::from(self.system) && header.component_id == self.component
     }
 }
@@ -122,18 +123,52 @@ async fn next<T>(
 /// Sends `cmd` as `COMMAND_LONG` until the autopilot acknowledges it:
 /// `attempts` sends, the confirmation field counting them, each followed
 /// by up to `ack` of waiting. `MAV_RESULT_IN_PROGRESS` stops the resending
-/// and waits up to `in_progress` for the final answer.
+/// and waits up to `in_progress` for the final answer. When no answer
+/// comes, the acknowledgement may have been lost on the way back: the
+/// command happened if the autopilot's latest telemetry shows its
+/// `effect`, and is no answer (-3) if it does not or nothing says.
 pub async fn command<P: Port>(
     port: &P,
     timing: &Timing,
     cmd: MavCmd,
     params: [f32; 7],
+    effect: Option<Effect>,
 ) -> Result<(), MavError> {
     let target = port.target()?;
     let mut rx = port.subscribe();
+    // What the latest telemetry says of the effect, while waiting.
+    let mut shown: Option<bool> = None;
+    let unanswered = match acknowledge(port, timing, (cmd, params), target, &mut rx, |m| {
+        if let Some(now) = effect.and_then(|e| e.shows(m)) {
+            shown = Some(now);
+        }
+    })
+    .await?
+    {
+        Some(unanswered) => unanswered,
+        None => return Ok(()),
+    };
+    if shown == Some(true) {
+        tracing::info!(cmd = %cmd_name(cmd), "no COMMAND_ACK, but the telemetry shows it happened");
+        return Ok(());
+    }
+    Err(unanswered)
+}
+
+/// The command protocol proper: `Ok(None)` when accepted, `Ok(Some(e))`
+/// when no answer came (`e` says how), `Err` for a refusal or a link
+/// failure; `watch` sees every other message of the autopilot meanwhile.
+async fn acknowledge<P: Port>(
+    port: &P,
+    timing: &Timing,
+    (cmd, params): (MavCmd, [f32; 7]),
+    target: Target,
+    rx: &mut broadcast::Receiver<Arc<Incoming>>,
+    mut watch: impl FnMut(&MavMessage),
+) -> Result<Option<MavError>, MavError> {
     let [param1, param2, param3, param4, param5, param6, param7] = params;
     for confirmation in 0..timing.attempts {
-        let msg = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+        port.send(MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
             param1,
             param2,
             param3,
@@ -145,18 +180,21 @@ pub async fn command<P: Port>(
             target_system: target.system,
             target_component: target.component,
             confirmation: u8::try_from(confirmation).unwrap_or(u8::MAX),
-        });
-        port.send(msg).await?;
+        }))
+        .await?;
         let mut deadline = Instant::now() + timing.ack;
         let mut in_progress = false;
         loop {
-            let result = next(&mut rx, target, deadline, |m| match m {
+            let result = next(rx, target, deadline, |m| match m {
                 MavMessage::COMMAND_ACK(a) if a.command == cmd => Some(a.result),
-                _ => None,
+                other => {
+                    watch(other);
+                    None
+                }
             })
             .await?;
             match result {
-                Some(MavResult::MAV_RESULT_ACCEPTED) => return Ok(()),
+                Some(MavResult::MAV_RESULT_ACCEPTED) => return Ok(None),
                 Some(MavResult::MAV_RESULT_IN_PROGRESS) => {
                     in_progress = true;
                     deadline = Instant::now() + timing.in_progress;
@@ -168,27 +206,19 @@ pub async fn command<P: Port>(
                     });
                 }
                 None if in_progress => {
-                    return Err(MavError::NoAnswer(format!(
-                        "{} still in progress after {} s",
-                        cmd_name(cmd),
-                        timing.in_progress.as_secs()
-                    )));
+                    let secs = timing.in_progress.as_secs();
+                    let why = format!("{} still in progress after {secs} s", cmd_name(cmd));
+                    return Ok(Some(MavError::NoAnswer(why)));
                 }
                 None => break,
             }
         }
     }
-    Err(MavError::NoAnswer(format!(
+    Ok(Some(MavError::NoAnswer(format!(
         "no COMMAND_ACK for {} after {} attempts",
         cmd_name(cmd),
         timing.attempts
-    )))
-}
-
-/// An answer in the mission upload.
-enum Upload {
-    Request(u16),
-    Ack(MavMissionResult),
+    ))))
 }
 
 // Legacy MISSION_REQUEST is deprecated, but older autopilots still send
@@ -196,86 +226,219 @@ enum Upload {
 #[allow(deprecated)]
 /// Uploads `items` with the mission protocol: `MISSION_COUNT`, then the
 /// item each `MISSION_REQUEST_INT` (or legacy `MISSION_REQUEST`) asks for,
-/// until `MISSION_ACK`. A silent autopilot gets the last message again,
-/// up to `mission_attempts` times; then the transfer is cancelled.
+/// until `MISSION_ACK` (see [`Upload`]). When the final acknowledgement
+/// is lost, the mission count is read back: the autopilot holds the
+/// mission if it holds that many items. Nothing is ever cancelled: the
+/// autopilot may hold the mission.
 pub async fn upload_mission<P: Port>(
     port: &P,
     timing: &Timing,
     items: &[MISSION_ITEM_INT_DATA],
 ) -> Result<(), MavError> {
     let target = port.target()?;
-    let count = u16::try_from(items.len()).map_err(|_| MavError::Invalid("too many mission items".into()))?;
+    let mut upload = Upload::new(target, items, timing.mission_attempts)?;
     let mut rx = port.subscribe();
-    let mut last = MavMessage::MISSION_COUNT(MISSION_COUNT_DATA {
-        count,
-        target_system: target.system,
-        target_component: target.component,
-    });
-    let mut highest: Option<u16> = None;
-    let mut silent = 0;
-    port.send(last.clone()).await?;
+    port.send(upload.first()).await?;
     loop {
         let deadline = Instant::now() + timing.mission_item;
-        let answer = next(&mut rx, target, deadline, |m| match m {
-            MavMessage::MISSION_REQUEST_INT(r) => Some(Upload::Request(r.seq)),
-            MavMessage::MISSION_REQUEST(r) => Some(Upload::Request(r.seq)),
-            MavMessage::MISSION_ACK(a) => Some(Upload::Ack(a.mavtype)),
+        let heard = next(&mut rx, target, deadline, |m| match m {
+            MavMessage::MISSION_REQUEST_INT(r) => Some(Heard::Request(r.seq)),
+            MavMessage::MISSION_REQUEST(r) => Some(Heard::Request(r.seq)),
+            MavMessage::MISSION_ACK(a) => Some(Heard::Ack(a.mavtype)),
             _ => None,
         })
         .await?;
-        match answer {
-            None => {
-                silent += 1;
-                if silent >= timing.mission_attempts {
-                    cancel_upload(port, target).await;
-                    let stage = highest.map_or("MISSION_COUNT".to_owned(), |s| format!("mission item {s}"));
-                    return Err(MavError::NoAnswer(format!(
-                        "mission upload stalled after {stage} of {count} ({silent} attempts)"
-                    )));
-                }
-                port.send(last.clone()).await?;
-            }
-            Some(Upload::Request(seq)) => {
-                let Some(item) = items.get(usize::from(seq)) else {
-                    cancel_upload(port, target).await;
-                    return Err(MavError::NoAnswer(format!(
-                        "the autopilot asked for mission item {seq} of {count}"
-                    )));
-                };
-                silent = 0;
-                highest = highest.max(Some(seq));
-                last = MavMessage::MISSION_ITEM_INT(MISSION_ITEM_INT_DATA {
-                    seq,
-                    target_system: target.system,
-                    target_component: target.component,
-                    ..*item
-                });
-                port.send(last.clone()).await?;
-            }
-            Some(Upload::Ack(MavMissionResult::MAV_MISSION_ACCEPTED))
-                if highest.map(|h| h + 1) == Some(count) =>
-            {
-                return Ok(());
-            }
-            Some(Upload::Ack(MavMissionResult::MAV_MISSION_ACCEPTED)) => {
-                return Err(MavError::NoAnswer(format!(
-                    "the autopilot accepted the mission before receiving all {count} items"
-                )));
-            }
-            Some(Upload::Ack(refused)) => return Err(mission_refused(refused)),
+        match upload.step(heard) {
+            Next::Send => port.send(upload.last()).await?,
+            Next::Wait => {}
+            Next::Done => return Ok(()),
+            Next::ReadBack => return read_back(port, timing, upload.count()).await,
+            Next::Fail(e) => return Err(e),
         }
     }
 }
 
-/// Ends an upload the autopilot still waits on, best effort.
-async fn cancel_upload<P: Port>(port: &P, target: Target) {
-    let cancel = MavMessage::MISSION_ACK(MISSION_ACK_DATA {
+/// What the autopilot said during an upload.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Heard {
+    /// It asks for this item.
+    Request(u16),
+    /// It ends the transfer so.
+    Ack(MavMissionResult),
+}
+
+/// What the uploader does next.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Next {
+    /// Send [`Upload::last`].
+    Send,
+    /// Keep waiting.
+    Wait,
+    /// The autopilot accepted the mission.
+    Done,
+    /// The final acknowledgement is lost: read the mission count back.
+    ReadBack,
+    /// The upload failed.
+    Fail(MavError),
+}
+
+/// The mission upload, message by message (sans-IO): which item to send
+/// for each request, when to send the last message again, and what a
+/// silence or an acknowledgement means at each point.
+#[derive(Clone, Debug)]
+pub struct Upload<'a> {
+    target: Target,
+    items: &'a [MISSION_ITEM_INT_DATA],
+    count: u16,
+    attempts: u32,
+    /// What was sent last, sent again when the autopilot is silent.
+    last: MavMessage,
+    /// The highest item asked for.
+    highest: Option<u16>,
+    silent: u32,
+    /// The final item was sent again after a silence: the autopilot may
+    /// have finished already, so an error acknowledgement may only say
+    /// that no transfer is in progress.
+    final_again: bool,
+}
+
+impl<'a> Upload<'a> {
+    /// An upload of `items` to `target`, each message sent up to
+    /// `attempts` times.
+    pub fn new(target: Target, items: &'a [MISSION_ITEM_INT_DATA], attempts: u32) -> Result<Self, MavError> {
+        let count =
+            u16::try_from(items.len()).map_err(|_| MavError::Invalid("too many mission items".into()))?;
+        Ok(Upload {
+            target,
+            items,
+            count,
+            attempts,
+            last: MavMessage::MISSION_COUNT(MISSION_COUNT_DATA {
+                count,
+                target_system: target.system,
+                target_component: target.component,
+            }),
+            highest: None,
+            silent: 0,
+            final_again: false,
+        })
+    }
+
+    /// How many items.
+    pub fn count(&self) -> u16 {
+        self.count
+    }
+
+    /// The first message: `MISSION_COUNT`.
+    pub fn first(&self) -> MavMessage {
+        self.last.clone()
+    }
+
+    /// The message to send now.
+    pub fn last(&self) -> MavMessage {
+        self.last.clone()
+    }
+
+    fn all_sent(&self) -> bool {
+        self.highest.map(|h| h.saturating_add(1)) == Some(self.count)
+    }
+
+    /// What to do after hearing `heard`, or a silence (`None`).
+    pub fn step(&mut self, heard: Option<Heard>) -> Next {
+        match heard {
+            None => self.silence(),
+            Some(Heard::Request(seq)) => {
+                let Some(item) = self.items.get(usize::from(seq)) else {
+                    tracing::debug!(seq, count = self.count, "mission request past the end ignored");
+                    return Next::Wait;
+                };
+                self.silent = 0;
+                self.final_again = false;
+                self.highest = self.highest.max(Some(seq));
+                self.last = MavMessage::MISSION_ITEM_INT(MISSION_ITEM_INT_DATA {
+                    seq,
+                    target_system: self.target.system,
+                    target_component: self.target.component,
+                    ..*item
+                });
+                Next::Send
+            }
+            Some(Heard::Ack(MavMissionResult::MAV_MISSION_ACCEPTED))
+                if self.all_sent() || self.count == 0 =>
+            {
+                Next::Done
+            }
+            Some(Heard::Ack(MavMissionResult::MAV_MISSION_ACCEPTED)) => {
+                Next::Fail(MavError::NoAnswer(format!(
+                    "the autopilot accepted the mission before receiving all {} items",
+                    self.count
+                )))
+            }
+            Some(Heard::Ack(_)) if self.final_again => Next::ReadBack,
+            Some(Heard::Ack(refused)) => Next::Fail(mission_refused(refused)),
+        }
+    }
+
+    fn silence(&mut self) -> Next {
+        self.silent += 1;
+        if self.silent < self.attempts {
+            self.final_again = self.all_sent();
+            return Next::Send;
+        }
+        if self.all_sent() {
+            return Next::ReadBack;
+        }
+        let stage = self
+            .highest
+            .map_or("MISSION_COUNT".to_owned(), |s| format!("mission item {s}"));
+        Next::Fail(MavError::NoAnswer(format!(
+            "mission upload stalled after {stage} of {} ({} attempts)",
+            self.count, self.silent
+        )))
+    }
+}
+
+/// After a lost final acknowledgement: whether the autopilot holds
+/// `count` items, read back with `MISSION_REQUEST_LIST`; the download is
+/// then ended with `MISSION_ACK`.
+async fn read_back<P: Port>(port: &P, timing: &Timing, count: u16) -> Result<(), MavError> {
+    let target = port.target()?;
+    let mut rx = port.subscribe();
+    let mut held = None;
+    for _ in 0..timing.mission_attempts {
+        port.send(MavMessage::MISSION_REQUEST_LIST(MISSION_REQUEST_LIST_DATA {
+            target_system: target.system,
+            target_component: target.component,
+        }))
+        .await?;
+        let deadline = Instant::now() + timing.mission_item;
+        held = next(&mut rx, target, deadline, |m| match m {
+            MavMessage::MISSION_COUNT(c) => Some(c.count),
+            _ => None,
+        })
+        .await?;
+        if held.is_some() {
+            break;
+        }
+    }
+    let Some(held) = held else {
+        return Err(MavError::NoAnswer(format!(
+            "no MISSION_ACK for the mission's {count} items, and no mission count read back"
+        )));
+    };
+    port.send(MavMessage::MISSION_ACK(MISSION_ACK_DATA {
         target_system: target.system,
         target_component: target.component,
-        mavtype: MavMissionResult::MAV_MISSION_OPERATION_CANCELLED,
-    });
-    if let Err(e) = port.send(cancel).await {
-        tracing::debug!(error = %e, "could not cancel the mission upload");
+        mavtype: MavMissionResult::MAV_MISSION_ACCEPTED,
+    }))
+    .await?;
+    if held == count {
+        tracing::info!(count, "no final MISSION_ACK, but the autopilot holds every item");
+        Ok(())
+    } else {
+        Err(MavError::NoAnswer(format!(
+            "no MISSION_ACK for the mission's {count} items, and the autopilot holds {held}"
+        )))
     }
 }
 

@@ -1,18 +1,27 @@
-//! What lluavd knows of the autopilot it follows, behind one lock: the
-//! telemetry cache, the setpoint it streams and the sessions that set it,
-//! the missions, and the camera's counters. Only methods change it, so
-//! every rule about it (when the stream stops, what an upload records)
-//! is written here once.
+//! What lluavd knows of the autopilot it follows, behind one lock: which
+//! autopilot that is (`follow`), the telemetry cache, the setpoint it
+//! streams and the sessions that set it, the missions, a takeoff it was
+//! told of before the telemetry shows it, and the camera's counters.
+//! Only methods change it, so every rule about it (what a packet may
+//! change, when the stream stops, what a new vehicle forgets) is written
+//! here once.
 
 use std::collections::HashSet;
+use std::net::SocketAddr;
 
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::ardupilotmega::MavMessage;
 use lluav_core::{Fields, Pose, SessionId};
 
 use super::answer::{Answer as _, Following, write_pose};
+use super::follow::{Admit, Follow, Wanted};
 use super::mission::Missions;
-use super::telemetry::Telemetry;
+use super::protocol::Target;
+use super::telemetry::{Status, Telemetry};
+
+/// How long after `takeoff` answered 0 the vehicle counts as taking off
+/// without the telemetry showing it: a climb shows within seconds.
+pub const TAKEOFF_GRACE_MS: i64 = 10_000;
 
 /// The setpoint being streamed and the sessions that set it.
 #[derive(Clone, Debug, PartialEq)]
@@ -22,17 +31,114 @@ struct Stream {
     owners: HashSet<SessionId>,
 }
 
+/// What a received packet did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Receipt {
+    /// Not the followed autopilot's: dropped, nothing changed.
+    Dropped,
+    /// The autopilot's: taken in.
+    Kept,
+    /// The autopilot's heartbeat, and the link is up again.
+    LinkUp,
+}
+
 /// What lluavd knows of the autopilot.
 #[derive(Debug, Default)]
 pub struct Known {
+    follow: Follow,
     tel: Telemetry,
     stream: Option<Stream>,
     missions: Missions,
     recording: bool,
     images: u32,
+    /// When `takeoff` answered 0, until the telemetry shows the climb.
+    took_off_ms: Option<i64>,
+    /// Packets dropped as foreign since the last [`Known::take_foreign`].
+    foreign: u64,
 }
 
 impl Known {
+    /// Knowing nothing yet, following `wanted`.
+    pub fn new(wanted: Wanted) -> Self {
+        Known {
+            follow: Follow::new(wanted),
+            ..Known::default()
+        }
+    }
+
+    /// Takes in a packet from `from` received at `now_ms`: only the
+    /// followed autopilot's change anything.
+    pub fn receive(
+        &mut self,
+        from: Option<SocketAddr>,
+        header: &MavHeader,
+        msg: &MavMessage,
+        now_ms: i64,
+    ) -> Receipt {
+        let receipt = match self.follow.admit(from, header, msg, now_ms) {
+            Admit::Foreign => {
+                self.foreign = self.foreign.saturating_add(1);
+                return Receipt::Dropped;
+            }
+            Admit::Accept => Receipt::Kept,
+            Admit::Acquired { new_vehicle } => {
+                if new_vehicle {
+                    self.new_vehicle();
+                }
+                Receipt::LinkUp
+            }
+            Admit::Rebooted => {
+                self.new_vehicle();
+                Receipt::Kept
+            }
+        };
+        self.tel.observe(msg);
+        self.missions.observe(msg);
+        if self.tel.airborne() {
+            self.took_off_ms = None;
+        }
+        receipt
+    }
+
+    /// Another vehicle (or the same one rebooted): nothing lluavd knew of
+    /// the old one holds. No setpoint is streamed until a client sends
+    /// one, and no mission is on it.
+    fn new_vehicle(&mut self) {
+        if self.stream.is_some() || self.missions.on_autopilot().is_some() {
+            tracing::warn!("a new autopilot: setpoint stream stopped, its missions forgotten");
+        }
+        self.tel.new_vehicle();
+        self.stream = None;
+        self.missions.new_vehicle();
+        self.recording = false;
+        self.took_off_ms = None;
+    }
+
+    /// Packets dropped as foreign since the last call.
+    pub fn take_foreign(&mut self) -> u64 {
+        std::mem::take(&mut self.foreign)
+    }
+
+    /// The autopilot followed, once a heartbeat chose it.
+    pub fn target(&self) -> Option<Target> {
+        self.follow.target()
+    }
+
+    /// Where the autopilot's packets come from: where lluavd sends.
+    pub fn peer(&self) -> Option<SocketAddr> {
+        self.follow.peer()
+    }
+
+    /// Whether the autopilot's heartbeat arrived within the link timeout.
+    pub fn link_up(&self, now_ms: i64) -> bool {
+        self.follow.link_up(now_ms)
+    }
+
+    /// Milliseconds since the autopilot's last heartbeat.
+    pub fn heartbeat_age_ms(&self, now_ms: i64) -> Option<i64> {
+        self.follow.heartbeat_age_ms(now_ms)
+    }
+
     /// The telemetry cache.
     pub fn tel(&self) -> &Telemetry {
         &self.tel
@@ -48,18 +154,37 @@ impl Known {
         &mut self.missions
     }
 
-    /// Takes in one message received at `now_ms`; true when it is a
-    /// heartbeat that brings the link up.
-    pub fn observe(&mut self, header: &MavHeader, msg: &MavMessage, now_ms: i64) -> bool {
-        let came_up = self.tel.observe(header, msg, now_ms);
-        if self
-            .tel
-            .target()
-            .is_some_and(|t| u32::from(t.system) == header.system_id)
-        {
-            self.missions.observe(msg);
+    /// `takeoff` answered 0 at `now_ms`: the vehicle counts as flying
+    /// from now on, before the telemetry shows the climb.
+    pub fn took_off(&mut self, now_ms: i64) {
+        self.took_off_ms = Some(now_ms);
+    }
+
+    /// The vehicle was disarmed on lluavd's command.
+    pub fn disarmed(&mut self) {
+        self.took_off_ms = None;
+        self.stream = None;
+    }
+
+    fn taking_off(&self, now_ms: i64) -> bool {
+        self.took_off_ms
+            .is_some_and(|t| now_ms.saturating_sub(t) < TAKEOFF_GRACE_MS)
+    }
+
+    /// `state.fsm`: the telemetry's, or `takeoff` right after `takeoff`
+    /// answered 0.
+    pub fn fsm(&self, now_ms: i64) -> &'static str {
+        if self.taking_off(now_ms) {
+            "takeoff"
+        } else {
+            self.tel.fsm()
         }
-        came_up
+    }
+
+    /// Whether the vehicle flies, for the commands that move a flying
+    /// vehicle.
+    pub fn airborne(&self, now_ms: i64) -> bool {
+        self.taking_off(now_ms) || self.tel.airborne()
     }
 
     /// The setpoint streamed now, if any.
@@ -116,25 +241,34 @@ impl Known {
         self.images
     }
 
-    /// Writes `sp` (the streamed setpoint or null), `active` and `fsm`:
-    /// `set_sp_ned`'s and `show_sp`'s answer.
-    pub fn write_setpoint(&self, out: &mut Fields<'_>) {
-        self.following().write(out);
-    }
-
     /// The setpoint streamed and the state, as `set_sp_ned` answers them.
-    pub fn following(&self) -> Following {
+    pub fn following(&self, now_ms: i64) -> Following {
         Following {
             setpoint: self.setpoint(),
-            fsm: self.tel.fsm(),
+            fsm: self.fsm(now_ms),
         }
+    }
+
+    /// Writes `sp` (the streamed setpoint or null), `active` and `fsm`:
+    /// `set_sp_ned`'s and `show_sp`'s answer.
+    pub fn write_setpoint(&self, now_ms: i64, out: &mut Fields<'_>) {
+        self.following(now_ms).write(out);
     }
 
     /// Writes the vehicle's members of `state` (see [`super`]).
     pub fn write_state(&self, now_ms: i64, lock_mode: bool, state: &mut Fields<'_>) {
-        self.tel.write_state(now_ms, state);
+        let status = Status {
+            fsm: self.fsm(now_ms),
+            airborne: self.airborne(now_ms),
+            link_up: self.link_up(now_ms),
+            heartbeat_age_ms: self.heartbeat_age_ms(now_ms),
+        };
+        self.tel.write_state(status, state);
         state.bool("lock_mode", lock_mode);
         write_pose(state, "setpoint", self.setpoint());
         self.missions.write_state(state);
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -1,35 +1,41 @@
-//! The cache of the autopilot's latest telemetry, fed by the link task,
-//! and what `state`, `mavlink_msgs` and the armed gate read from it.
+//! The cache of the followed autopilot's latest telemetry (only its own
+//! messages reach it, see `follow`), and what `state`, `mavlink_msgs` and
+//! the armed gate read from it.
 
 use std::collections::BTreeMap;
 
-use ::mavlink::MavHeader;
 use ::mavlink::Message as _;
 use ::mavlink::dialects::ardupilotmega::{
     ATTITUDE_DATA, BATTERY_STATUS_DATA, EXTENDED_SYS_STATE_DATA, GLOBAL_POSITION_INT_DATA, HEARTBEAT_DATA,
-    HOME_POSITION_DATA, LOCAL_POSITION_NED_DATA, MavAutopilot, MavLandedState, MavMessage, MavModeFlag,
-    MavProtocolCapability, MavType, SYS_STATUS_DATA,
+    HOME_POSITION_DATA, LOCAL_POSITION_NED_DATA, MavLandedState, MavMessage, MavModeFlag,
+    MavProtocolCapability, SYS_STATUS_DATA,
 };
 use lluav_core::Fields;
 
 use super::autopilot::{Encoding, Flavour, Phase};
 use super::geo::Global;
-use super::protocol::Target;
 use crate::vehicle::Ned;
 
-/// Without a heartbeat for this long the link is lost (DESIGN.md).
-pub const LINK_TIMEOUT_MS: i64 = 3000;
+/// How `state` reads beside the cache: the flight state as lluavd knows
+/// it and the link's health.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Status {
+    /// `fsm`.
+    pub fsm: &'static str,
+    /// `airborne`.
+    pub airborne: bool,
+    /// Whether the link is up.
+    pub link_up: bool,
+    /// Milliseconds since the autopilot's last heartbeat.
+    pub heartbeat_age_ms: Option<i64>,
+}
 
 /// The latest of each message lluavd reads, from the autopilot.
 #[derive(Debug, Default)]
 pub struct Telemetry {
-    /// The autopilot's address: the first heartbeat from an autopilot.
-    target: Option<Target>,
     /// Which autopilot.
     flavour: Option<Flavour>,
     heartbeat: Option<HEARTBEAT_DATA>,
-    /// When the last heartbeat arrived, ms since the Unix epoch.
-    heartbeat_ms: Option<i64>,
     sys_status: Option<SYS_STATUS_DATA>,
     local: Option<LOCAL_POSITION_NED_DATA>,
     global: Option<GLOBAL_POSITION_INT_DATA>,
@@ -39,44 +45,30 @@ pub struct Telemetry {
     battery: Option<BATTERY_STATUS_DATA>,
     /// The parameter encoding `AUTOPILOT_VERSION` announced.
     encoding: Option<Encoding>,
-    /// Messages received, by type, from anyone on the link.
+    /// Messages received from the autopilot, by type.
     counts: BTreeMap<&'static str, u64>,
     /// Distance flown while armed, metres.
     distance_m: f64,
 }
 
 impl Telemetry {
-    /// Takes in one message received at `now_ms`; true when it is a
-    /// heartbeat that brings the link up (first, or after it was lost).
-    pub fn observe(&mut self, header: &MavHeader, msg: &MavMessage, now_ms: i64) -> bool {
-        *self.counts.entry(msg.message_name()).or_insert(0) += 1;
-        if let (None, MavMessage::HEARTBEAT(hb)) = (self.target, msg)
-            && is_autopilot(hb)
-        {
-            self.target = Some(Target {
-                system: u8::try_from(header.system_id).unwrap_or(u8::MAX),
-                component: header.component_id,
-            });
-            self.flavour = Some(Flavour::from_autopilot(hb.autopilot));
-            tracing::info!(
-                system = header.system_id,
-                component = header.component_id,
-                autopilot = ?hb.autopilot,
-                "autopilot found"
-            );
-        }
-        let Some(target) = self.target else {
-            return false;
+    /// Another vehicle: nothing of the old one is true of it. The message
+    /// counts and the distance flown are the link's and lluavd's, kept.
+    pub fn new_vehicle(&mut self) {
+        *self = Telemetry {
+            counts: std::mem::take(&mut self.counts),
+            distance_m: self.distance_m,
+            ..Telemetry::default()
         };
-        if header.system_id != u32::from(target.system) || header.component_id != target.component {
-            return false;
-        }
+    }
+
+    /// Takes in one message of the followed autopilot.
+    pub fn observe(&mut self, msg: &MavMessage) {
+        *self.counts.entry(msg.message_name()).or_insert(0) += 1;
         match msg {
             MavMessage::HEARTBEAT(hb) => {
-                let came_up = !self.link_up(now_ms);
+                self.flavour = Some(Flavour::from_autopilot(hb.autopilot));
                 self.heartbeat = Some(hb.clone());
-                self.heartbeat_ms = Some(now_ms);
-                return came_up;
             }
             MavMessage::SYS_STATUS(m) => self.sys_status = Some(m.clone()),
             MavMessage::LOCAL_POSITION_NED(m) => {
@@ -106,12 +98,6 @@ impl Telemetry {
             }
             _ => {}
         }
-        false
-    }
-
-    /// The autopilot's address, once a heartbeat named it.
-    pub fn target(&self) -> Option<Target> {
-        self.target
     }
 
     /// Which autopilot, once a heartbeat named it.
@@ -122,16 +108,6 @@ impl Telemetry {
     /// Distance flown while armed, metres.
     pub fn distance_m(&self) -> f64 {
         self.distance_m
-    }
-
-    /// Whether a heartbeat arrived within [`LINK_TIMEOUT_MS`] of `now_ms`.
-    pub fn link_up(&self, now_ms: i64) -> bool {
-        self.heartbeat_ms.is_some_and(|t| now_ms - t <= LINK_TIMEOUT_MS)
-    }
-
-    /// Milliseconds since the last heartbeat.
-    pub fn heartbeat_age_ms(&self, now_ms: i64) -> Option<i64> {
-        self.heartbeat_ms.map(|t| (now_ms - t).max(0))
     }
 
     /// The heartbeat's armed flag (the last one seen, even if the link is
@@ -235,10 +211,10 @@ impl Telemetry {
 
     /// Writes the telemetry members of `state` (see the module doc of
     /// [`super`]).
-    pub fn write_state(&self, now_ms: i64, s: &mut Fields<'_>) {
+    pub fn write_state(&self, status: Status, s: &mut Fields<'_>) {
         s.bool("armed", self.armed())
-            .str("fsm", self.fsm())
-            .bool("airborne", self.airborne());
+            .str("fsm", status.fsm)
+            .bool("airborne", status.airborne);
         opt_ned(s, "position", self.position());
         opt_ned(
             s,
@@ -259,8 +235,8 @@ impl Telemetry {
             None => s.null("battery"),
         };
         opt_ned(s, "home", self.home_local());
-        s.str("link", if self.link_up(now_ms) { "up" } else { "lost" });
-        match self.heartbeat_age_ms(now_ms) {
+        s.str("link", if status.link_up { "up" } else { "lost" });
+        match status.heartbeat_age_ms {
             Some(age) => s.i64("heartbeat_age_ms", age),
             None => s.null("heartbeat_age_ms"),
         };
@@ -333,28 +309,10 @@ fn landed_name(l: MavLandedState) -> &'static str {
     }
 }
 
-/// Whether a heartbeat is an autopilot's (not a ground station's, a
-/// gimbal's or another companion computer's).
-fn is_autopilot(hb: &HEARTBEAT_DATA) -> bool {
-    hb.autopilot != MavAutopilot::MAV_AUTOPILOT_INVALID
-        && !matches!(
-            hb.mavtype,
-            MavType::MAV_TYPE_GCS | MavType::MAV_TYPE_ONBOARD_CONTROLLER | MavType::MAV_TYPE_GIMBAL
-        )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ::mavlink::dialects::ardupilotmega::{MavState, MavVtolState};
-
-    fn header(system: u32, component: u8) -> MavHeader {
-        MavHeader {
-            system_id: system,
-            component_id: component,
-            sequence: 0,
-        }
-    }
+    use ::mavlink::dialects::ardupilotmega::{MavAutopilot, MavState, MavType, MavVtolState};
 
     fn heartbeat(autopilot: MavAutopilot, armed: bool, custom_mode: u32) -> MavMessage {
         let mut base_mode = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
@@ -379,80 +337,34 @@ mod tests {
     }
 
     #[test]
-    fn the_link_is_up_for_three_seconds_after_each_heartbeat() {
+    fn the_heartbeat_names_the_autopilot_and_every_message_is_counted() {
         let mut t = Telemetry::default();
-        assert!(!t.link_up(0));
-        assert!(t.observe(
-            &header(1, 1),
-            &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0),
-            1000
-        ));
-        assert!(!t.observe(
-            &header(1, 1),
-            &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0),
-            2000
-        ));
-        assert!(t.link_up(5000) && !t.link_up(5001));
-        assert_eq!(t.heartbeat_age_ms(5001), Some(3001));
-        // A heartbeat after the loss brings the link up again.
-        assert!(t.observe(
-            &header(1, 1),
-            &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0),
-            9000
-        ));
-    }
-
-    #[test]
-    fn only_the_first_autopilot_is_followed() {
-        let mut t = Telemetry::default();
-        let gcs = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-            mavtype: MavType::MAV_TYPE_GCS,
-            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-            ..HEARTBEAT_DATA::DEFAULT
-        });
-        t.observe(&header(255, 190), &gcs, 0);
-        assert_eq!(t.target, None);
-        t.observe(
-            &header(3, 1),
-            &heartbeat(MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA, true, 4),
-            0,
-        );
-        t.observe(
-            &header(4, 1),
-            &heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0),
-            0,
-        );
-        assert_eq!(
-            t.target,
-            Some(Target {
-                system: 3,
-                component: 1
-            })
-        );
-        assert_eq!(t.flavour, Some(Flavour::ArduPilot));
-        assert!(t.armed(), "system 4's disarmed heartbeat must not count");
-        assert_eq!(t.total_messages(), 3);
+        assert_eq!(t.flavour(), None);
+        t.observe(&heartbeat(MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA, true, 4));
+        t.observe(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR));
+        assert_eq!(t.flavour(), Some(Flavour::ArduPilot));
+        assert!(t.armed());
+        assert_eq!(t.total_messages(), 2);
     }
 
     #[test]
     fn fsm_follows_the_armed_flag_the_landed_state_and_the_mode() {
         let mut t = Telemetry::default();
         let px4 = MavAutopilot::MAV_AUTOPILOT_PX4;
-        let h = header(1, 1);
-        t.observe(&h, &heartbeat(px4, false, 0), 0);
+        t.observe(&heartbeat(px4, false, 0));
         assert_eq!(t.fsm(), "disarmed");
-        t.observe(&h, &heartbeat(px4, true, 0), 0);
-        t.observe(&h, &landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND), 0);
+        t.observe(&heartbeat(px4, true, 0));
+        t.observe(&landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND));
         assert_eq!((t.fsm(), t.airborne()), ("armed", false));
-        t.observe(&h, &landed(MavLandedState::MAV_LANDED_STATE_TAKEOFF), 0);
+        t.observe(&landed(MavLandedState::MAV_LANDED_STATE_TAKEOFF));
         assert_eq!(t.fsm(), "takeoff");
-        t.observe(&h, &landed(MavLandedState::MAV_LANDED_STATE_IN_AIR), 0);
+        t.observe(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR));
         assert_eq!((t.fsm(), t.airborne()), ("hover", true));
-        t.observe(&h, &heartbeat(px4, true, (4 << 16) | (4 << 24)), 0);
+        t.observe(&heartbeat(px4, true, (4 << 16) | (4 << 24)));
         assert_eq!(t.fsm(), "mission");
-        t.observe(&h, &heartbeat(px4, true, (4 << 16) | (5 << 24)), 0);
+        t.observe(&heartbeat(px4, true, (4 << 16) | (5 << 24)));
         assert_eq!(t.fsm(), "rtl");
-        t.observe(&h, &heartbeat(px4, true, (4 << 16) | (6 << 24)), 0);
+        t.observe(&heartbeat(px4, true, (4 << 16) | (6 << 24)));
         assert_eq!(t.fsm(), "landing");
     }
 }

@@ -95,6 +95,7 @@ async fn an_acknowledged_command_is_sent_once_to_the_autopilot() {
         &Timing::default(),
         ARM,
         [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        None,
     )
     .await
     .unwrap();
@@ -116,7 +117,9 @@ async fn an_unanswered_command_is_resent_with_the_confirmation_counting_up() {
         }
     });
     let started = Instant::now();
-    command(&port, &Timing::default(), ARM, [0.0; 7]).await.unwrap();
+    command(&port, &Timing::default(), ARM, [0.0; 7], None)
+        .await
+        .unwrap();
     assert_eq!(confirmations(&port.sent()), [0, 1, 2]);
     assert_eq!(started.elapsed(), Timing::default().ack * 2);
 }
@@ -124,7 +127,7 @@ async fn an_unanswered_command_is_resent_with_the_confirmation_counting_up() {
 #[tokio::test(start_paused = true)]
 async fn a_silent_autopilot_is_no_answer_after_every_attempt() {
     let port = Fake::new(|_, _| vec![]);
-    let err = command(&port, &Timing::default(), ARM, [0.0; 7])
+    let err = command(&port, &Timing::default(), ARM, [0.0; 7], None)
         .await
         .unwrap_err();
     assert_eq!(
@@ -138,7 +141,7 @@ async fn a_silent_autopilot_is_no_answer_after_every_attempt() {
 #[tokio::test(start_paused = true)]
 async fn a_refusal_names_the_mav_result_and_is_not_retried() {
     let port = Fake::new(|_, _| vec![ack(ARM, MavResult::MAV_RESULT_TEMPORARILY_REJECTED)]);
-    let err = command(&port, &Timing::default(), ARM, [0.0; 7])
+    let err = command(&port, &Timing::default(), ARM, [0.0; 7], None)
         .await
         .unwrap_err();
     assert_eq!(
@@ -154,7 +157,7 @@ async fn acks_for_other_commands_or_from_other_systems_are_not_taken() {
     let port = Fake::new(|_, _| vec![ack(MavCmd::MAV_CMD_NAV_LAND, MavResult::MAV_RESULT_ACCEPTED)]);
     let stranger = port.feed.clone();
     let p = Arc::clone(&port);
-    let task = tokio::spawn(async move { command(&p, &Timing::default(), ARM, [0.0; 7]).await });
+    let task = tokio::spawn(async move { command(&p, &Timing::default(), ARM, [0.0; 7], None).await });
     tokio::time::sleep(Duration::from_millis(100)).await;
     let header = MavHeader {
         system_id: 2,
@@ -174,7 +177,9 @@ async fn in_progress_stops_the_resending_and_waits_for_the_final_answer() {
         tokio::time::sleep(Duration::from_secs(10)).await;
         p.autopilot_says(ack(ARM, MavResult::MAV_RESULT_ACCEPTED));
     });
-    command(&port, &Timing::default(), ARM, [0.0; 7]).await.unwrap();
+    command(&port, &Timing::default(), ARM, [0.0; 7], None)
+        .await
+        .unwrap();
     assert_eq!(confirmations(&port.sent()), [0]);
 }
 
@@ -280,7 +285,7 @@ async fn an_item_the_autopilot_asks_for_twice_is_sent_twice() {
 }
 
 #[tokio::test(start_paused = true)]
-async fn a_link_that_dies_mid_upload_is_no_answer_and_the_upload_is_cancelled() {
+async fn a_link_that_dies_mid_upload_is_no_answer_and_nothing_is_cancelled() {
     let port = Fake::new(|m, _| match m {
         MavMessage::MISSION_COUNT(_) => vec![request(0)],
         MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 => vec![request(1)],
@@ -295,10 +300,172 @@ async fn a_link_that_dies_mid_upload_is_no_answer_and_the_upload_is_cancelled() 
     );
     let sent = port.sent();
     assert_eq!(item_seqs(&sent), [0, 1, 1, 1, 1, 1]);
-    assert!(matches!(
-        sent.last(),
-        Some(MavMessage::MISSION_ACK(a)) if a.mavtype == MavMissionResult::MAV_MISSION_OPERATION_CANCELLED
-    ));
+    assert!(
+        matches!(sent.last(), Some(MavMessage::MISSION_ITEM_INT(_))),
+        "{sent:?}"
+    );
+}
+
+fn count(n: u16) -> MavMessage {
+    MavMessage::MISSION_COUNT(MISSION_COUNT_DATA {
+        count: n,
+        target_system: 255,
+        target_component: 0,
+    })
+}
+
+/// An autopilot that takes every item but whose final MISSION_ACK is
+/// lost, answering a read-back with `holds` items.
+fn final_ack_lost(items: u16, holds: u16) -> impl FnMut(&MavMessage, usize) -> Vec<MavMessage> + Send {
+    move |m, _| match m {
+        MavMessage::MISSION_COUNT(_) => vec![request(0)],
+        MavMessage::MISSION_ITEM_INT(i) if i.seq + 1 < items => vec![request(i.seq + 1)],
+        MavMessage::MISSION_REQUEST_LIST(_) => vec![count(holds)],
+        _ => vec![],
+    }
+}
+
+fn sent_kinds(sent: &[MavMessage]) -> Vec<&'static str> {
+    use ::mavlink::Message as _;
+    sent.iter().map(|m| m.message_name()).collect()
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_lost_final_ack_is_read_back_and_the_mission_kept() {
+    let port = Fake::new(final_ack_lost(3, 3));
+    upload_mission(&port, &Timing::default(), &waypoints(3))
+        .await
+        .unwrap();
+    let sent = port.sent();
+    assert_eq!(item_seqs(&sent), [0, 1, 2, 2, 2, 2, 2]);
+    let kinds = sent_kinds(&sent);
+    assert_eq!(kinds[kinds.len() - 2..], ["MISSION_REQUEST_LIST", "MISSION_ACK"]);
+    assert!(
+        matches!(sent.last(), Some(MavMessage::MISSION_ACK(a)) if a.mavtype == MavMissionResult::MAV_MISSION_ACCEPTED)
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_lost_final_ack_with_another_mission_read_back_is_no_answer() {
+    let port = Fake::new(final_ack_lost(3, 0));
+    let err = upload_mission(&port, &Timing::default(), &waypoints(3))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err,
+        MavError::NoAnswer("no MISSION_ACK for the mission's 3 items, and the autopilot holds 0".into())
+    );
+    assert_eq!(err.ret().code(), -3);
+    let refusals = port
+        .sent()
+        .iter()
+        .filter(|m| matches!(m, MavMessage::MISSION_ACK(a) if a.mavtype != MavMissionResult::MAV_MISSION_ACCEPTED))
+        .count();
+    assert_eq!(refusals, 0, "nothing cancelled");
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_error_ack_to_a_final_item_sent_again_is_read_back_not_believed() {
+    // The autopilot finished (its ACK was lost) and answers the repeated
+    // last item with "no transfer in progress".
+    let mut done = false;
+    let port = Fake::new(move |m, _| match m {
+        MavMessage::MISSION_COUNT(_) => vec![request(0)],
+        MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 => vec![request(1)],
+        MavMessage::MISSION_ITEM_INT(_) if !done => {
+            done = true;
+            vec![]
+        }
+        MavMessage::MISSION_ITEM_INT(_) => vec![mission_ack(MavMissionResult::MAV_MISSION_INVALID_SEQUENCE)],
+        MavMessage::MISSION_REQUEST_LIST(_) => vec![count(2)],
+        _ => vec![],
+    });
+    upload_mission(&port, &Timing::default(), &waypoints(2))
+        .await
+        .unwrap();
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_request_past_the_end_is_ignored() {
+    let port = Fake::new(|m, _| match m {
+        MavMessage::MISSION_COUNT(_) => vec![request(0), request(9)],
+        MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 => vec![request(7), request(1)],
+        MavMessage::MISSION_ITEM_INT(_) => vec![mission_ack(MavMissionResult::MAV_MISSION_ACCEPTED)],
+        _ => vec![],
+    });
+    upload_mission(&port, &Timing::default(), &waypoints(2))
+        .await
+        .unwrap();
+    assert_eq!(item_seqs(&port.sent()), [0, 1]);
+}
+
+fn heartbeat(armed: bool) -> MavMessage {
+    use ::mavlink::dialects::ardupilotmega::{HEARTBEAT_DATA, MavModeFlag};
+    let base_mode = if armed {
+        MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED
+    } else {
+        MavModeFlag::empty()
+    };
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        base_mode,
+        ..HEARTBEAT_DATA::DEFAULT
+    })
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_lost_ack_is_answered_by_the_telemetry_that_shows_the_command_happened() {
+    // The ACK never comes; after the second send the heartbeats say armed.
+    let port = Fake::new(|_, n| {
+        if n == 1 {
+            vec![heartbeat(false), heartbeat(true)]
+        } else {
+            vec![]
+        }
+    });
+    let started = Instant::now();
+    command(
+        &port,
+        &Timing::default(),
+        ARM,
+        [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        Some(Effect::Armed(true)),
+    )
+    .await
+    .unwrap();
+    // The acknowledgement is still waited for, as long as it may come.
+    assert_eq!(confirmations(&port.sent()), [0, 1, 2]);
+    assert_eq!(started.elapsed(), Timing::default().ack * 3);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_lost_ack_is_judged_by_the_latest_telemetry() {
+    // Armed, then disarmed again (the vehicle would not stay armed).
+    let port = Fake::new(|_, n| match n {
+        0 => vec![heartbeat(true)],
+        1 => vec![heartbeat(false)],
+        _ => vec![],
+    });
+    let arm = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    let err = command(&port, &Timing::default(), ARM, arm, Some(Effect::Armed(true)))
+        .await
+        .unwrap_err();
+    assert_eq!(err.ret().code(), -3);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_lost_ack_the_telemetry_does_not_confirm_is_no_answer() {
+    let port = Fake::new(|_, _| vec![heartbeat(false)]);
+    let err = command(
+        &port,
+        &Timing::default(),
+        ARM,
+        [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        Some(Effect::Armed(true)),
+    )
+    .await
+    .unwrap_err();
+    assert_eq!(err.ret().code(), -3);
+    assert_eq!(confirmations(&port.sent()), [0, 1, 2]);
 }
 
 #[tokio::test(start_paused = true)]

@@ -1,0 +1,221 @@
+//! What packets, a takeoff and a new autopilot do to what lluavd knows.
+
+use ::mavlink::dialects::ardupilotmega::{
+    ATTITUDE_DATA, EXTENDED_SYS_STATE_DATA, HEARTBEAT_DATA, HOME_POSITION_DATA, MavAutopilot, MavLandedState,
+    MavModeFlag, MavState, MavType, MavVtolState,
+};
+use lluav_core::{Pose, SessionId};
+
+use super::*;
+use crate::mavlink::mission::{Mission, OnAutopilot, Waypoint};
+use crate::vehicle::Ned;
+
+fn addr(port: u16) -> Option<SocketAddr> {
+    Some(SocketAddr::from(([127, 0, 0, 1], port)))
+}
+
+fn header(system: u32) -> MavHeader {
+    MavHeader {
+        system_id: system,
+        component_id: 1,
+        sequence: 0,
+    }
+}
+
+fn heartbeat(armed: bool) -> MavMessage {
+    let mut base_mode = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
+    if armed {
+        base_mode |= MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
+    }
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode: 0,
+        mavtype: MavType::MAV_TYPE_QUADROTOR,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+        base_mode,
+        system_status: MavState::MAV_STATE_ACTIVE,
+        mavlink_version: 3,
+    })
+}
+
+fn landed(state: MavLandedState) -> MavMessage {
+    MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
+        vtol_state: MavVtolState::MAV_VTOL_STATE_MC,
+        landed_state: state,
+    })
+}
+
+fn home(latitude: i32) -> MavMessage {
+    MavMessage::HOME_POSITION(HOME_POSITION_DATA {
+        latitude,
+        ..HOME_POSITION_DATA::DEFAULT
+    })
+}
+
+fn attitude(time_boot_ms: u32) -> MavMessage {
+    MavMessage::ATTITUDE(ATTITUDE_DATA {
+        time_boot_ms,
+        ..ATTITUDE_DATA::DEFAULT
+    })
+}
+
+const POSE: Pose = Pose {
+    x: 1.0,
+    y: 2.0,
+    z: -3.0,
+    yaw: 0.0,
+};
+
+/// Following system 1 at port 1, armed and in the air, a setpoint
+/// streamed, mission 7 on the autopilot.
+fn flying() -> Known {
+    let mut k = Known::new(Wanted::System(1));
+    assert_eq!(
+        k.receive(addr(1), &header(1), &heartbeat(true), 0),
+        Receipt::LinkUp
+    );
+    k.receive(
+        addr(1),
+        &header(1),
+        &landed(MavLandedState::MAV_LANDED_STATE_IN_AIR),
+        0,
+    );
+    k.receive(addr(1), &header(1), &home(473_977_420), 0);
+    k.receive(addr(1), &header(1), &attitude(60_000), 0);
+    k.stream(POSE, SessionId(1));
+    let mission = Mission {
+        ext_id: 7,
+        waypoints: vec![Waypoint {
+            id: 1,
+            ned: Ned::new(1.0, 0.0, -3.0),
+            yaw: None,
+        }],
+    };
+    k.missions_mut().uploaded(mission, 0);
+    k
+}
+
+#[test]
+fn a_foreign_packet_changes_nothing_whatever_it_claims() {
+    let mut k = flying();
+    for (from, system) in [(addr(2), 1), (addr(1), 2), (None, 1)] {
+        assert_eq!(
+            k.receive(from, &header(system), &heartbeat(false), 10),
+            Receipt::Dropped
+        );
+        assert_eq!(k.receive(from, &header(system), &home(1), 10), Receipt::Dropped);
+        assert_eq!(
+            k.receive(from, &header(system), &attitude(1), 10),
+            Receipt::Dropped
+        );
+    }
+    assert!(k.tel().armed());
+    assert_eq!(k.tel().home_global().map(|h| h.e7().0), Some(473_977_420));
+    assert_eq!((k.peer(), k.setpoint()), (addr(1), Some(POSE)));
+    assert!(k.missions().on_autopilot().is_some());
+    assert_eq!(k.take_foreign(), 9);
+    assert_eq!(k.tel().total_messages(), 4);
+}
+
+#[test]
+fn the_same_autopilot_back_after_a_loss_is_the_same_vehicle() {
+    let mut k = flying();
+    assert!(!k.link_up(5000));
+    assert_eq!(
+        k.receive(addr(1), &header(1), &heartbeat(true), 5000),
+        Receipt::LinkUp
+    );
+    k.receive(addr(1), &header(1), &attitude(65_000), 5000);
+    assert_eq!(k.setpoint(), Some(POSE));
+    assert!(k.missions().on_autopilot().is_some());
+    assert_eq!(k.tel().home_global().map(|h| h.e7().0), Some(473_977_420));
+}
+
+#[test]
+fn another_autopilot_is_a_new_vehicle_and_nothing_of_the_old_one_holds() {
+    for (from, system) in [(addr(2), 1), (addr(1), 2)] {
+        let mut k = Known::new(Wanted::Any);
+        k.receive(addr(1), &header(1), &heartbeat(true), 0);
+        k.stream(POSE, SessionId(1));
+        k.took_off(0);
+        assert_eq!(
+            k.receive(from, &header(system), &heartbeat(false), 3001),
+            Receipt::LinkUp
+        );
+        assert_eq!((k.setpoint(), k.peer()), (None, from));
+        assert_eq!((k.fsm(3001), k.tel().home_global()), ("disarmed", None));
+    }
+}
+
+#[test]
+fn a_rebooted_autopilot_behind_the_same_address_is_a_new_vehicle() {
+    let mut k = flying();
+    assert_eq!(k.receive(addr(1), &header(1), &attitude(500), 100), Receipt::Kept);
+    assert_eq!(k.setpoint(), None);
+    assert_eq!(k.missions().on_autopilot(), None::<&OnAutopilot>);
+    assert_eq!(k.tel().home_global(), None);
+    assert!(k.link_up(100), "still the followed autopilot");
+}
+
+#[test]
+fn after_takeoff_answered_the_vehicle_counts_as_flying_until_the_telemetry_takes_over() {
+    let mut k = Known::new(Wanted::System(1));
+    k.receive(addr(1), &header(1), &heartbeat(true), 0);
+    k.receive(
+        addr(1),
+        &header(1),
+        &landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND),
+        0,
+    );
+    assert_eq!((k.fsm(0), k.airborne(0)), ("armed", false));
+    k.took_off(1000);
+    assert_eq!((k.fsm(1000), k.airborne(1000)), ("takeoff", true));
+    // A ground report that was on its way changes nothing.
+    k.receive(
+        addr(1),
+        &header(1),
+        &landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND),
+        1100,
+    );
+    assert_eq!(k.fsm(1100), "takeoff");
+    k.receive(
+        addr(1),
+        &header(1),
+        &landed(MavLandedState::MAV_LANDED_STATE_IN_AIR),
+        2000,
+    );
+    assert_eq!(k.fsm(2000), "hover");
+    k.receive(
+        addr(1),
+        &header(1),
+        &landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND),
+        9000,
+    );
+    assert_eq!(
+        (k.fsm(9000), k.airborne(9000)),
+        ("armed", false),
+        "telemetry rules again"
+    );
+}
+
+#[test]
+fn a_takeoff_the_telemetry_never_shows_stops_counting_and_a_disarm_ends_it() {
+    let mut k = Known::new(Wanted::System(1));
+    k.receive(addr(1), &header(1), &heartbeat(true), 0);
+    k.took_off(0);
+    assert!(k.airborne(TAKEOFF_GRACE_MS - 1));
+    assert!(!k.airborne(TAKEOFF_GRACE_MS));
+    k.took_off(0);
+    k.stream(POSE, SessionId(3));
+    k.disarmed();
+    assert_eq!((k.airborne(1), k.setpoint()), (false, None));
+}
+
+#[test]
+fn the_stream_stops_when_the_last_session_that_set_it_leaves() {
+    let mut k = flying();
+    k.stream(POSE, SessionId(2));
+    k.release(SessionId(1));
+    assert_eq!(k.setpoint(), Some(POSE));
+    k.release(SessionId(2));
+    assert_eq!(k.setpoint(), None);
+}
