@@ -1,7 +1,10 @@
-//! Drivers shared by the WebSocket fuzz targets: both adapters' connection
+//! Drivers shared by the fuzz targets: both WebSocket adapters' connection
 //! code over in-memory streams, in-process, configured alike (the same
 //! Origin/Host policy, the same message limit), and what the core's
-//! WebSocket rules say each should answer.
+//! WebSocket rules say each should answer; and lluavd's MAVLink link
+//! ([`mavlink`]).
+
+pub mod mavlink;
 
 use std::cell::RefCell;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};

@@ -125,6 +125,12 @@ impl Follow {
         self.from
     }
 
+    /// How many boot times are kept.
+    #[cfg(feature = "fuzzing")]
+    pub fn boot_times(&self) -> usize {
+        self.boot_ms.len()
+    }
+
     /// Whether its heartbeat arrived within [`LINK_TIMEOUT_MS`] of `now_ms`.
     pub fn link_up(&self, now_ms: i64) -> bool {
         self.heartbeat_ms

@@ -158,6 +158,12 @@ impl Missions {
         }
     }
 
+    /// How many missions are kept.
+    #[cfg(feature = "fuzzing")]
+    pub fn kept(&self) -> usize {
+        self.submitted.len()
+    }
+
     /// The latest mission.
     pub fn latest(&self) -> Option<&Mission> {
         self.submitted.back()

@@ -5,7 +5,7 @@
 //! A link task (module `link`) reads everything the autopilot sends into
 //! what lluavd knows of it (`state`: the telemetry cache, the setpoint
 //! stream, the missions) and a feed; commands that need the autopilot's
-//! answer run the MAVLink protocols ([`protocol`]) as async sequences
+//! answer run the MAVLink protocols (`protocol`) as async sequences
 //! (`ops`) on the link's tasks and answer [`Progress::Waiting`]: the
 //! daemon waits for them with the vehicle unlocked, so other sessions are
 //! served meanwhile, and each sequence ends with its own answer
@@ -86,11 +86,25 @@ pub mod geo;
 mod link;
 mod mission;
 mod ops;
-pub mod protocol;
+mod protocol;
 mod signing;
 mod state;
 mod telemetry;
 mod transport;
+
+/// The link's internals, for the fuzz targets only (the `fuzzing`
+/// feature, off by default): what lluavd knows of the autopilot and how a
+/// packet changes it, the datagram parser, and the command and mission
+/// protocols over any [`fuzzing::Port`].
+#[cfg(feature = "fuzzing")]
+pub mod fuzzing {
+    pub use super::effect::Effect;
+    pub use super::follow::Wanted;
+    pub use super::protocol::{Heard, Incoming, Next, Port, Target, Timing, Upload, command, upload_mission};
+    pub use super::signing::SigningKey;
+    pub use super::state::{Known, Receipt};
+    pub use super::transport::parse_datagram;
+}
 
 use std::io;
 use std::sync::Arc;

@@ -114,6 +114,14 @@ impl Known {
         self.took_off_ms = None;
     }
 
+    /// How many entries what lluavd knows holds: message kinds counted,
+    /// boot times kept, missions kept. Bounded whatever the autopilot
+    /// sends.
+    #[cfg(feature = "fuzzing")]
+    pub fn footprint(&self) -> usize {
+        self.tel.kinds() + self.follow.boot_times() + self.missions.kept()
+    }
+
     /// Packets dropped as foreign since the last call.
     pub fn take_foreign(&mut self) -> u64 {
         std::mem::take(&mut self.foreign)

@@ -270,6 +270,12 @@ impl Telemetry {
         });
     }
 
+    /// How many message kinds were counted.
+    #[cfg(feature = "fuzzing")]
+    pub fn kinds(&self) -> usize {
+        self.counts.len()
+    }
+
     /// All messages received.
     pub fn total_messages(&self) -> u64 {
         self.counts.values().sum()
