@@ -27,40 +27,32 @@ pub enum Effect {
 }
 
 impl Effect {
-    /// Whether `msg`, from the autopilot, shows the effect: `None` when it
-    /// says nothing about it. The latest message that says something is
-    /// what the telemetry shows.
-    pub fn shows(self, msg: &MavMessage) -> Option<bool> {
+    /// Whether `msg`, from the autopilot, shows the effect. One message
+    /// that shows it after the command was sent is enough: the command
+    /// happened, even if what it started is over by now (a return that
+    /// already landed, an arming the autopilot undid).
+    pub fn seen(self, msg: &MavMessage) -> bool {
         let armed = |hb: &HEARTBEAT_DATA| hb.base_mode.contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED);
         match (self, msg) {
-            (Effect::Armed(want), MavMessage::HEARTBEAT(hb)) => Some(armed(hb) == want),
-            (Effect::Mode(flavour, mode), MavMessage::HEARTBEAT(hb)) => {
-                Some(flavour.is_mode(hb.custom_mode, mode))
-            }
+            (Effect::Armed(want), MavMessage::HEARTBEAT(hb)) => armed(hb) == want,
+            (Effect::Mode(flavour, mode), MavMessage::HEARTBEAT(hb)) => flavour.is_mode(hb.custom_mode, mode),
             (Effect::Phase(flavour, phase), MavMessage::HEARTBEAT(hb)) => {
-                Some(flavour.phase(hb.custom_mode) == phase)
+                flavour.phase(hb.custom_mode) == phase
             }
-            // The landed state says; a heartbeat only when it shows the
-            // landing mode, or a vehicle already down and disarmed.
             (Effect::Landing(flavour), MavMessage::HEARTBEAT(hb)) => {
-                (!armed(hb) || flavour.phase(hb.custom_mode) == Phase::Landing).then_some(true)
+                armed(hb) && flavour.phase(hb.custom_mode) == Phase::Landing
             }
-            (Effect::Landing(_), MavMessage::EXTENDED_SYS_STATE(e)) => Some(matches!(
-                e.landed_state,
-                MavLandedState::MAV_LANDED_STATE_LANDING | MavLandedState::MAV_LANDED_STATE_ON_GROUND
-            )),
-            // Disarmed is on the ground whatever the mode; armed in PX4's
-            // takeoff mode is taking off; any other mode leaves it to the
-            // landed state.
-            (Effect::Airborne(_), MavMessage::HEARTBEAT(hb)) if !armed(hb) => Some(false),
+            (Effect::Landing(_), MavMessage::EXTENDED_SYS_STATE(e)) => {
+                e.landed_state == MavLandedState::MAV_LANDED_STATE_LANDING
+            }
             (Effect::Airborne(flavour), MavMessage::HEARTBEAT(hb)) => {
-                (flavour.phase(hb.custom_mode) == Phase::Takeoff).then_some(true)
+                armed(hb) && flavour.phase(hb.custom_mode) == Phase::Takeoff
             }
-            (Effect::Airborne(_), MavMessage::EXTENDED_SYS_STATE(e)) => Some(matches!(
+            (Effect::Airborne(_), MavMessage::EXTENDED_SYS_STATE(e)) => matches!(
                 e.landed_state,
                 MavLandedState::MAV_LANDED_STATE_TAKEOFF | MavLandedState::MAV_LANDED_STATE_IN_AIR
-            )),
-            _ => None,
+            ),
+            _ => false,
         }
     }
 }
@@ -101,70 +93,37 @@ mod tests {
 
     #[test]
     fn arming_shows_in_the_heartbeat() {
-        assert_eq!(Effect::Armed(true).shows(&heartbeat(true, 0)), Some(true));
-        assert_eq!(Effect::Armed(true).shows(&heartbeat(false, 0)), Some(false));
-        assert_eq!(Effect::Armed(false).shows(&heartbeat(false, 0)), Some(true));
-        let in_air = landed(MavLandedState::MAV_LANDED_STATE_IN_AIR);
-        assert_eq!(Effect::Armed(true).shows(&in_air), None);
+        assert!(Effect::Armed(true).seen(&heartbeat(true, 0)));
+        assert!(!Effect::Armed(true).seen(&heartbeat(false, 0)));
+        assert!(Effect::Armed(false).seen(&heartbeat(false, 0)));
+        assert!(!Effect::Armed(true).seen(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR)));
     }
 
     #[test]
     fn a_takeoff_shows_in_the_landed_state_or_the_takeoff_mode() {
         let px4 = Effect::Airborne(Flavour::Px4);
-        assert_eq!(
-            px4.shows(&landed(MavLandedState::MAV_LANDED_STATE_TAKEOFF)),
-            Some(true)
-        );
-        assert_eq!(
-            px4.shows(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR)),
-            Some(true)
-        );
-        assert_eq!(
-            px4.shows(&landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND)),
-            Some(false)
-        );
-        assert_eq!(px4.shows(&heartbeat(true, PX4_TAKEOFF)), Some(true));
-        assert_eq!(
-            px4.shows(&heartbeat(false, PX4_TAKEOFF)),
-            Some(false),
+        assert!(px4.seen(&landed(MavLandedState::MAV_LANDED_STATE_TAKEOFF)));
+        assert!(px4.seen(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR)));
+        assert!(!px4.seen(&landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND)));
+        assert!(px4.seen(&heartbeat(true, PX4_TAKEOFF)));
+        assert!(
+            !px4.seen(&heartbeat(false, PX4_TAKEOFF)),
             "disarmed is on the ground"
         );
-        assert_eq!(
-            px4.shows(&heartbeat(true, PX4_OFFBOARD)),
-            None,
-            "the landed state says"
-        );
+        assert!(!px4.seen(&heartbeat(true, PX4_OFFBOARD)));
     }
 
     #[test]
     fn modes_and_phases_show_in_the_heartbeat() {
-        let offboard = Effect::Mode(Flavour::Px4, Mode::Guided);
-        assert_eq!(offboard.shows(&heartbeat(true, PX4_OFFBOARD)), Some(true));
-        assert_eq!(offboard.shows(&heartbeat(true, PX4_LAND)), Some(false));
-        let guided = Effect::Mode(Flavour::ArduPilot, Mode::Guided);
-        assert_eq!(guided.shows(&heartbeat(true, 4)), Some(true));
+        assert!(Effect::Mode(Flavour::Px4, Mode::Guided).seen(&heartbeat(true, PX4_OFFBOARD)));
+        assert!(!Effect::Mode(Flavour::Px4, Mode::Guided).seen(&heartbeat(true, PX4_LAND)));
+        assert!(Effect::Mode(Flavour::ArduPilot, Mode::Guided).seen(&heartbeat(true, 4)));
         let landing = Effect::Landing(Flavour::Px4);
-        assert_eq!(landing.shows(&heartbeat(true, PX4_LAND)), Some(true));
-        assert_eq!(landing.shows(&heartbeat(true, PX4_OFFBOARD)), None);
-        assert_eq!(
-            landing.shows(&heartbeat(false, PX4_OFFBOARD)),
-            Some(true),
-            "down and disarmed"
-        );
-        assert_eq!(
-            landing.shows(&landed(MavLandedState::MAV_LANDED_STATE_LANDING)),
-            Some(true)
-        );
-        assert_eq!(
-            landing.shows(&landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND)),
-            Some(true)
-        );
-        assert_eq!(
-            landing.shows(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR)),
-            Some(false)
-        );
-        let rtl = Effect::Phase(Flavour::ArduPilot, Phase::Rtl);
-        assert_eq!(rtl.shows(&heartbeat(true, 9)), Some(false));
-        assert_eq!(rtl.shows(&heartbeat(true, 6)), Some(true));
+        assert!(landing.seen(&heartbeat(true, PX4_LAND)));
+        assert!(!landing.seen(&heartbeat(true, PX4_OFFBOARD)));
+        assert!(landing.seen(&landed(MavLandedState::MAV_LANDED_STATE_LANDING)));
+        assert!(!landing.seen(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR)));
+        assert!(!Effect::Phase(Flavour::ArduPilot, Phase::Rtl).seen(&heartbeat(true, 9)));
+        assert!(Effect::Phase(Flavour::ArduPilot, Phase::Rtl).seen(&heartbeat(true, 6)));
     }
 }

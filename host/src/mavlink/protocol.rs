@@ -125,8 +125,8 @@ async fn next<T>(
 /// by up to `ack` of waiting. `MAV_RESULT_IN_PROGRESS` stops the resending
 /// and waits up to `in_progress` for the final answer. When no answer
 /// comes, the acknowledgement may have been lost on the way back: the
-/// command happened if the autopilot's latest telemetry shows its
-/// `effect`, and is no answer (-3) if it does not or nothing says.
+/// command happened if the autopilot's telemetry showed its `effect`
+/// meanwhile, and is no answer (-3) if it did not or nothing says.
 pub async fn command<P: Port>(
     port: &P,
     timing: &Timing,
@@ -136,19 +136,17 @@ pub async fn command<P: Port>(
 ) -> Result<(), MavError> {
     let target = port.target()?;
     let mut rx = port.subscribe();
-    // What the latest telemetry says of the effect, while waiting.
-    let mut shown: Option<bool> = None;
+    // Whether the telemetry showed the effect while waiting.
+    let mut seen = false;
     let unanswered = match acknowledge(port, timing, (cmd, params), target, &mut rx, |m| {
-        if let Some(now) = effect.and_then(|e| e.shows(m)) {
-            shown = Some(now);
-        }
+        seen |= effect.is_some_and(|e| e.seen(m));
     })
     .await?
     {
         Some(unanswered) => unanswered,
         None => return Ok(()),
     };
-    if shown == Some(true) {
+    if seen {
         tracing::info!(cmd = %cmd_name(cmd), "no COMMAND_ACK, but the telemetry shows it happened");
         return Ok(());
     }
