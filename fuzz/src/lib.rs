@@ -10,9 +10,9 @@ use std::cell::RefCell;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::sync::Arc;
 
+use lluav_core::CloseCode;
 use lluav_core::websocket::handshake::{self, Request};
 use lluav_core::websocket::policy::Policy;
-use lluav_core::CloseCode;
 use lluav_core::websocket::{Fragments, Interrupt, Opcode, Verdict, close_reply, parse_header, unmask};
 use lluav_embedded::testing::{Pipe, PipeError};
 use lluav_embedded::{Connection, Echo, Error, Limits};
@@ -63,13 +63,23 @@ pub fn status(answer: &[u8]) -> Option<u16> {
 pub fn first_close_sent(mut wire: &[u8]) -> Option<u16> {
     while let [b0, b1, rest @ ..] = wire {
         let (len, rest) = match b1 & 0x7f {
-            126 => (usize::from(u16::from_be_bytes([*rest.first()?, *rest.get(1)?])), rest.get(2..)?),
-            127 => (usize::try_from(u64::from_be_bytes(*rest.first_chunk::<8>()?)).ok()?, rest.get(8..)?),
+            126 => (
+                usize::from(u16::from_be_bytes([*rest.first()?, *rest.get(1)?])),
+                rest.get(2..)?,
+            ),
+            127 => (
+                usize::try_from(u64::from_be_bytes(*rest.first_chunk::<8>()?)).ok()?,
+                rest.get(8..)?,
+            ),
             n => (usize::from(n), rest),
         };
         let payload = rest.get(..len)?;
         if b0 & 0x0f == 0x8 {
-            return Some(payload.first_chunk::<2>().map_or(1005, |c| u16::from_be_bytes(*c)));
+            return Some(
+                payload
+                    .first_chunk::<2>()
+                    .map_or(1005, |c| u16::from_be_bytes(*c)),
+            );
         }
         wire = rest.get(len..)?;
     }
