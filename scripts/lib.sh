@@ -38,3 +38,24 @@ find_lluavd() {
     fi
     export LLUAVD
 }
+
+# Starts a named step: prints how long the previous one took, then the new
+# one's name. `steps_done` (run it on exit) closes the last step and prints
+# the total, so a slow suite shows in the log of every run.
+step() {
+    step_end
+    step_name=$*
+    step_started=$SECONDS
+    printf '\n=== %s\n' "$step_name"
+}
+step_end() {
+    if [ -n "${step_name:-}" ]; then
+        printf '=== %s: %d s\n' "$step_name" $((SECONDS - step_started))
+        step_name=
+    fi
+}
+steps_done() {
+    local rc=$?
+    step_end
+    printf '=== %s: %d s in all (exit %d)\n' "$(basename "$0")" "$SECONDS" "$rc"
+}

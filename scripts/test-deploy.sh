@@ -19,8 +19,9 @@
 # libc6-arm64-cross, systemd (for systemd-analyze), binutils and adduser
 # when missing.
 set -euo pipefail
-cd "$(dirname "$0")/.."
-step() { printf '\n=== %s\n' "$*"; }
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/lib.sh"
+trap steps_done EXIT
 target_dir=$(realpath -m -- "${CARGO_TARGET_DIR:-target}")
 work=$target_dir/deploy/check
 GLIBC=2.31

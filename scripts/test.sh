@@ -14,7 +14,7 @@
 set -euo pipefail
 # shellcheck source=scripts/lib.sh
 . "$(dirname "$0")/lib.sh"
-step() { printf '\n=== %s\n' "$*"; }
+trap steps_done EXIT
 suites=("$@")
 [ ${#suites[@]} -gt 0 ] || suites=(rust python console mavlink deploy)
 for suite in "${suites[@]}"; do
