@@ -8,7 +8,8 @@
 # (so 127.0.0.0/8 is not claimed by it) and route_localnet lets the kernel
 # route 127.53.0.0/24 over tap0. Nothing leaves the namespace.
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/../../scripts/lib.sh"
 NS=${LLUAV_NETNS:-lluav-embedded}
 OUT=${1:-target/autobahn-embedded}
 ADAPTER=127.53.0.1
@@ -20,7 +21,7 @@ cleanup() {
 }
 trap cleanup EXIT
 
-cargo build -p lluav-embedded --example tap --release
+tap=$(built_executable -p lluav-embedded --example tap --release)
 ip netns del "$NS" 2>/dev/null || true
 ip netns add "$NS"
 ip netns exec "$NS" ip tuntap add dev tap0 mode tap
@@ -29,7 +30,7 @@ ip netns exec "$NS" ip addr add "$PEER/24" dev tap0
 ip netns exec "$NS" ip link set tap0 up
 
 mkdir -p "$(dirname "$OUT")"
-ip netns exec "$NS" target/release/examples/tap --tap tap0 --address "$ADAPTER/24" --echo \
+ip netns exec "$NS" "$tap" --tap tap0 --address "$ADAPTER/24" --echo \
   >"$OUT.log" 2>&1 &
 PID=$!
 for _ in $(seq 50); do

@@ -10,14 +10,14 @@
 # LLUAV_CORE_ONLY_FEATURES adds features of embedded/core-only (ryu-small).
 set -euo pipefail
 top=${1:-20}
-root=$(cd "$(dirname "$0")/../.." && pwd)
-(cd "$root/embedded/core-only" && cargo build --release --features "${LLUAV_CORE_ONLY_FEATURES:-}")
-(cd "$root/embedded/firmware" && cargo build --release)
-core_elf=$root/embedded/core-only/target/thumbv7em-none-eabihf/release/lluav-core-only
-fw_elf=$root/embedded/firmware/target/thumbv7em-none-eabihf/release/lluav-firmware
+# Fails when core-only is over its flash budget, 32 KiB.
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/../../scripts/lib.sh"
+core_elf=$(cd embedded/core-only && built_executable --release --features "${LLUAV_CORE_ONLY_FEATURES:-}")
+fw_elf=$(cd embedded/firmware && built_executable --release)
 
 sections() { size -A "$1" | awk '{ print $1, $2 }'; }
-{ sections "$core_elf" | sed 's/^/core /'; sections "$fw_elf" | sed 's/^/fw /'; } | awk '
+{ sections "$core_elf" | sed 's/^/core /'; sections "$fw_elf" | sed 's/^/fw /'; } | awk -v budget=$((32 * 1024)) '
   { s[$1, $2] = $3 }
   function flash(w) { return s[w, ".vector_table"] + s[w, ".text"] + s[w, ".rodata"] + s[w, ".data"] }
   function ram(w) { return s[w, ".data"] + s[w, ".bss"] + s[w, ".uninit"] }
@@ -29,6 +29,7 @@ sections() { size -A "$1" | awk '{ print $1, $2 }'; }
     row("  .vector_table", ".vector_table"); row("  .text", ".text"); row("  .rodata", ".rodata")
     row("  .data", ".data"); row("  .bss", ".bss"); row("  .uninit", ".uninit")
     printf "core-only is %.0f%% of the firmware flash\n", 100 * flash("core") / flash("fw")
+    if (flash("core") > budget) { printf "over budget: core-only flash %d > %d bytes\n", flash("core"), budget; exit 1 }
   }'
 
 # Symbols in flash (text and read-only data), grouped by where they come
