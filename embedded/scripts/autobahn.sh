@@ -22,6 +22,9 @@ cleanup() {
 trap cleanup EXIT
 
 tap=$(built_executable -p lluav-embedded --example tap --release)
+# The runner installs itself on first use; the namespace has no route out.
+runner=${AUTOBAHN_RUNNER:-../shared/tools/autobahn/run.sh}
+"$runner" --install-only
 ip netns del "$NS" 2>/dev/null || true
 ip netns add "$NS"
 ip netns exec "$NS" ip tuntap add dev tap0 mode tap
@@ -40,5 +43,5 @@ done
 grep -q '^listening on ' "$OUT.log" || { cat "$OUT.log"; exit 2; }
 
 rm -rf "$OUT"; mkdir -p "$(dirname "$OUT")"
-ip netns exec "$NS" "${AUTOBAHN_RUNNER:-../shared/tools/autobahn/run.sh}" "ws://$ADAPTER:53001" --text-only \
+ip netns exec "$NS" "$runner" "ws://$ADAPTER:53001" --text-only \
   --agent lluav-embedded --outdir "$OUT"
