@@ -39,6 +39,16 @@ def wait_for(what, predicate, timeout=20.0, every=0.05):
         time.sleep(every)
 
 
+def stays(what, predicate, seconds, every=0.1):
+    """Checks `predicate` stays truthy for `seconds`: for what must NOT
+    happen (a link that must not come up, a stream that must stay quiet),
+    the window is the test's bound, and a failure says when it broke."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        assert predicate(), f"{what} no longer held after {seconds - (deadline - time.monotonic()):.1f} s"
+        time.sleep(every)
+
+
 class Client:
     """One WebSocket session: `cmd` sends a frame and returns the JSON reply."""
 
@@ -63,18 +73,22 @@ class Client:
 
 
 class Daemon:
-    """lluavd with --mavlink udpin on `port`, or at `address`."""
+    """lluavd with --mavlink udpin on `port`, or at `address`; `extra`
+    arguments appended (`--mavlink-system`, `--mavlink-signing-key`)."""
 
-    def __init__(self, tmp, port, address=None):
+    def __init__(self, tmp, port, address=None, extra=()):
         exe = os.environ.get("LLUAVD", str(ROOT / "target" / "debug" / "lluavd"))
         self.log = open(tmp / "lluavd.log", "w")
         env = dict(os.environ, RUST_LOG=os.environ.get("RUST_LOG", "info,lluav_host::mavlink=debug"))
         self.proc = subprocess.Popen(
             [exe, "--mavlink", address or f"udpin:127.0.0.1:{port}", "--bind", "127.0.0.1:0",
-             "--data-dir", str(tmp / "data"), "--password", PASSWORD],
+             "--data-dir", str(tmp / "data"), "--password", PASSWORD, *extra],
             stdout=subprocess.PIPE, stderr=self.log, text=True, env=env)
         line = self.proc.stdout.readline()
-        assert line.startswith("listening on "), f"lluavd did not start: {line!r}"
+        if not line.startswith("listening on "):
+            self.proc.wait(timeout=10)
+            self.log.close()
+            raise AssertionError(f"lluavd did not start: {line!r}: {(tmp / 'lluavd.log').read_text()[-600:]}")
         self.url = line.split()[-1]
         self.clients = []
 
@@ -109,8 +123,8 @@ def udp_port():
 def daemon_factory(tmp_path):
     started = []
 
-    def start(port, address=None):
-        d = Daemon(tmp_path, port, address)
+    def start(port, address=None, extra=()):
+        d = Daemon(tmp_path, port, address, extra)
         started.append(d)
         return d
 

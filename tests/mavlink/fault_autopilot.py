@@ -22,13 +22,26 @@ class FaultyAutopilot:
     - `drop_item_once`: mission item seqs ignored the first time they arrive;
     - `die_after_item`: after this mission item, fall silent for good;
     - `mission_result`: the MISSION_ACK result at the end of an upload;
-    - `params`: name -> (raw float on the wire, MAV_PARAM_TYPE).
+    - `params`: name -> (raw float on the wire, MAV_PARAM_TYPE);
+    - `request_out_of_range_after`: after this mission item, also ask for
+      an item past the end of the mission.
     Everything received is in `received` (monotonic time, message).
+
+    `signing_key` (32 bytes) signs what it sends; it then still takes in
+    unsigned or wrongly signed messages, and each message's `get_signed()`
+    says whether its signature was good. SYSTEM_TIME carries the time
+    since it started, as a flight controller's boot time.
     """
 
-    def __init__(self, port, autopilot=mav.MAV_AUTOPILOT_PX4, transport="udpout"):
+    def __init__(self, port, autopilot=mav.MAV_AUTOPILOT_PX4, transport="udpout", signing_key=None,
+                 system_id=1):
         self.conn = mavutil.mavlink_connection(
-            f"{transport}:127.0.0.1:{port}", source_system=1, source_component=1, dialect="ardupilotmega")
+            f"{transport}:127.0.0.1:{port}", source_system=system_id, source_component=1,
+            dialect="ardupilotmega")
+        if signing_key is not None:
+            self.conn.setup_signing(signing_key, sign_outgoing=True,
+                                    allow_unsigned_callback=lambda _mav, _msg_id: True)
+        self.booted = time.monotonic()
         self.autopilot = autopilot
         self.lock = threading.Lock()
         self.received = []
@@ -36,6 +49,7 @@ class FaultyAutopilot:
         self.ack_result = {}
         self.drop_item_once = set()
         self.die_after_item = None
+        self.request_out_of_range_after = None
         self.mission_result = mav.MAV_MISSION_ACCEPTED
         self.params = {}
         self.mission = []
@@ -64,6 +78,8 @@ class FaultyAutopilot:
             lat, lon = int(HOME[0] * 1e7), int(HOME[1] * 1e7)
             self._send(m.home_position_send, lat, lon, int(HOME[2] * 1000), 0.0, 0.0, 0.0,
                        [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+            boot_ms = int((time.monotonic() - self.booted) * 1000)
+            self._send(m.system_time_send, int(time.time() * 1e6), boot_ms)
             self._stop.wait(0.5)
 
     def _listen(self):
@@ -110,6 +126,8 @@ class FaultyAutopilot:
             self.silent.set()
             return
         src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if self.request_out_of_range_after == msg.seq:
+            self._send(self.conn.mav.mission_request_int_send, *src, self.mission_count + 5)
         if len(self.mission) < self.mission_count:
             self._send(self.conn.mav.mission_request_int_send, *src, len(self.mission))
         else:

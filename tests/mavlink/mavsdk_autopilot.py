@@ -28,7 +28,7 @@ from mavsdk.plugins.mavlink_direct_server.mavlink_direct_server import (
     MavlinkDirectServer,
     MavlinkMessage,
 )
-from mavsdk.plugins.mission_raw_server.mission_raw_server import MissionRawServer
+from mavsdk.plugins.mission_raw_server.mission_raw_server import MissionRawServer, MissionRawServerResult
 from mavsdk.plugins.param_server.param_server import ParamServer
 from mavsdk.plugins.telemetry_server.telemetry_server import (
     AngularVelocityBody,
@@ -72,19 +72,27 @@ INT_PARAMS = {"SYS_AUTOSTART": 4001, "COM_RC_LOSS_T": -7}
 
 
 class MavsdkAutopilot:
-    """An autopilot on `udpout://127.0.0.1:port` with a kinematic model.
+    """An autopilot on `udpout://127.0.0.1:port` with a kinematic model,
+    as MAVLink system `system_id`.
 
     Everything lluavd sent is recorded: `commands` (COMMAND_LONG fields as
     dicts, in order), `setpoints` ((monotonic time, fields) per
-    SET_POSITION_TARGET_LOCAL_NED), `missions` (the uploaded item lists).
+    SET_POSITION_TARGET_LOCAL_NED), `missions` (the uploaded item lists),
+    `clears` (MISSION_CLEAR_ALLs obeyed). `holding` is the mission it holds.
+    Its ATTITUDE carries the time since it started, as a flight
+    controller's boot time (a new instance is a rebooted autopilot).
     """
 
-    def __init__(self, port):
+    def __init__(self, port, system_id=1):
         self.lock = threading.Lock()
         self.commands = []
         self.setpoints = []
         self.missions = []
+        self.clears = 0
+        self.failed_uploads = []
+        self.holding = []
         self.mode_changes = []
+        self.booted = time.monotonic()
         self.armed = False
         self.mode = "ready"
         self.pos = [0.0, 0.0, 0.0]
@@ -95,7 +103,9 @@ class MavsdkAutopilot:
         self._keep = []
         self._stop = threading.Event()
 
-        self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.AUTOPILOT))
+        config = Configuration.create_with_component_type(ComponentType.AUTOPILOT)
+        config.system_id = system_id
+        self.mavsdk = Mavsdk(config)
         self.connection = self.mavsdk.add_any_connection_with_handle(f"udpout://127.0.0.1:{port}")
         sc = self.mavsdk.server_component()
         self.action = ActionServer(sc)
@@ -122,6 +132,7 @@ class MavsdkAutopilot:
         self.action.subscribe_takeoff(self._on_takeoff)
         self.action.subscribe_flight_mode_change(self._on_mode)
         self.mission.subscribe_incoming_mission(self._on_mission)
+        self.mission.subscribe_clear_all(self._on_clear_all)
         self.direct.subscribe_message("COMMAND_LONG", self._on_command_long)
         self.direct.subscribe_message("SET_POSITION_TARGET_LOCAL_NED", self._on_setpoint)
         for cmd in (MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_MISSION_START):
@@ -160,8 +171,18 @@ class MavsdkAutopilot:
                 self.mode = "offboard"
 
     def _on_mission(self, result, plan, _ud):
+        if result != MissionRawServerResult.SUCCESS:
+            with self.lock:
+                self.failed_uploads.append(result)
+            return
         with self.lock:
             self.missions.append(list(plan.mission_items))
+            self.holding = self.missions[-1]
+
+    def _on_clear_all(self, _clear_type, _ud):
+        with self.lock:
+            self.clears += 1
+            self.holding = []
 
     def _on_direct_command(self, msg, _ud):
         fields = json.loads(msg.fields_json)
@@ -171,9 +192,9 @@ class MavsdkAutopilot:
                 self.mode = "land"
             elif cmd == MAV_CMD_NAV_RETURN_TO_LAUNCH:
                 self.mode = "rtl"
-            elif cmd == MAV_CMD_MISSION_START and self.missions:
+            elif cmd == MAV_CMD_MISSION_START and self.holding:
                 self.mission_targets = [
-                    geo.ned_from(HOME, it.x * 1e-7, it.y * 1e-7, it.z) for it in self.missions[-1]
+                    geo.ned_from(HOME, it.x * 1e-7, it.y * 1e-7, it.z) for it in self.holding
                 ]
                 self.mode = "mission"
         ack = {"command": cmd, "result": MAV_RESULT_ACCEPTED, "progress": 0,
@@ -237,7 +258,8 @@ class MavsdkAutopilot:
             PositionNed(*self.pos), VelocityNed(*self.vel)))
         t.publish_position(Position(lat, lon, alt, -self.pos[2]), VelocityNed(*self.vel),
                            Heading(math.degrees(self.yaw) % 360))
-        t.publish_attitude(EulerAngle(0.0, 0.0, math.degrees(self.yaw), 0),
+        boot_us = int((time.monotonic() - self.booted) * 1e6)
+        t.publish_attitude(EulerAngle(0.0, 0.0, math.degrees(self.yaw), boot_us),
                            AngularVelocityBody(0.0, 0.0, 0.0))
         t.publish_extended_sys_state(VtolState.MC, landed)
         if tick % RATE_HZ == 0:

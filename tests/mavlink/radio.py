@@ -1,0 +1,72 @@
+"""What the radio-link tests share: flying the MAVSDK autopilot to a hover,
+missions of any length, and reading what reached the autopilot (setpoint
+rates, commands nobody asked for)."""
+
+import json
+import math
+import time
+
+from conftest import wait_for
+
+ARM_DISARM = 400
+NAV_TAKEOFF = 22
+DO_SET_MODE = 176
+MISSION_ACCEPTED = 0
+MISSION_CANCELLED = 4
+NOT_ON_AUTOPILOT = "Invalid arguments: mission {} is not on the autopilot"
+
+
+def waypoints(n, radius=8.0):
+    """A mission of `n` waypoints on a circle, 3-5 m up."""
+    wps = [{"x": round(radius * math.cos(2 * math.pi * i / n), 2),
+            "y": round(radius * math.sin(2 * math.pi * i / n), 2),
+            "z": -3 - (i % 3)} for i in range(n)]
+    return json.dumps({"waypoints": wps}, separators=(",", ":"))
+
+
+def hover(client, autopilot):
+    """Takes off and waits for the hover; returns the takeoff answer."""
+    r = client.ok("takeoff")
+    wait_for("hovering", lambda: client.state()["fsm"] == "hover", timeout=30)
+    wait_for("the autopilot armed", lambda: autopilot.armed)
+    return r
+
+
+def steer(client, autopilot, x, y, z):
+    """set_sp_ned, and waits for the autopilot to get there."""
+    r = client.ok(f"set_sp_ned {x}:{y}:{z}:0")
+    wait_for("at the setpoint", lambda: math.dist(autopilot.position(), [x, y, z]) < 0.3, timeout=30)
+    return r
+
+
+def setpoints_since(autopilot, since):
+    """Times of the SET_POSITION_TARGET_LOCAL_NEDs the autopilot got since `since`."""
+    with autopilot.lock:
+        return [t for t, _ in autopilot.setpoints if t >= since]
+
+
+def per_second(times, start, seconds):
+    """How many of `times` fell in each whole second from `start`."""
+    return [sum(1 for t in times if start + i <= t < start + i + 1) for i in range(seconds)]
+
+
+def stream_rate(autopilot, seconds=4):
+    """Setpoints per second the autopilot receives over the next `seconds`."""
+    start = time.monotonic()
+    time.sleep(seconds)
+    return per_second(setpoints_since(autopilot, start), start, seconds)
+
+
+def unrequested(relay, since=0.0, disarm_asked=False, clear_asked=False):
+    """Cleanup messages that reached the autopilot although no client asked
+    for them: a disarm, MISSION_CLEAR_ALL, a cancelled mission transfer."""
+    found = []
+    for m in relay.received(since=since):
+        kind = m.get_type()
+        if kind == "COMMAND_LONG" and m.command == ARM_DISARM and m.param1 == 0 and not disarm_asked:
+            found.append(f"DISARM (param2 {m.param2})")
+        elif kind == "MISSION_CLEAR_ALL" and not clear_asked:
+            found.append("MISSION_CLEAR_ALL")
+        elif kind == "MISSION_ACK" and m.type != MISSION_ACCEPTED:
+            found.append(f"MISSION_ACK {m.type}")
+    return found
