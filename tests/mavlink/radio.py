@@ -12,7 +12,6 @@ ARM_DISARM = 400
 NAV_TAKEOFF = 22
 DO_SET_MODE = 176
 MISSION_ACCEPTED = 0
-MISSION_CANCELLED = 4
 NOT_ON_AUTOPILOT = "Invalid arguments: mission {} is not on the autopilot"
 
 

@@ -129,10 +129,10 @@ def test_takeoff_counts_as_flying_at_once(relayed):
     for n in range(3):
         assert client.ok("takeoff")["fsm"] == "takeoff"
         state = client.state()
-        assert (state["fsm"], state["armed"]) == ("takeoff", True), (n, state)
+        assert (state["fsm"], state["airborne"]) == ("takeoff", True), (n, state)
         sent = time.monotonic()
         r = client.cmd("set_sp_ned 1:1:-3:0")
         assert r["ret"] == 0, (n, r)
-        wait_for("setpoints at the autopilot", lambda: len(setpoints_since(ap, sent)) >= 3)
+        wait_for("setpoints at the autopilot", lambda since=sent: len(setpoints_since(ap, since)) >= 3)
         client.ok("disarm")
         wait_for("disarmed", lambda: client.state()["armed"] is False and not ap.armed)

@@ -5,12 +5,11 @@ the MAVSDK autopilot flies. lluavd must keep following its autopilot,
 send only to it, and keep streaming setpoints at their rate."""
 
 import math
-import time
 
 import pytest
 
 from conftest import Daemon, free_udp_port, stays, wait_for
-from fault_autopilot import FaultyAutopilot, mav
+from fault_autopilot import mav
 from hostile import Neighbour
 from mavsdk_autopilot import MavsdkAutopilot
 from radio import ARM_DISARM, hover, steer, stream_rate, waypoints
