@@ -174,7 +174,7 @@ def summary(flights, garbage_runs):
         runs = [f for f in flights if f["loss"] == loss]
         done = [sum(1 for s in STEPS if f["steps"].get(s, {}).get("done")) for f in runs]
 
-        def med(step):
+        def med(step, runs=runs):
             ts = [f["steps"][step]["s"] for f in runs
                   if step in f["steps"] and f["steps"][step].get("done")]
             return f"{statistics.median(ts):.2f}" if ts else "-"
