@@ -50,11 +50,15 @@ def stays(what, predicate, seconds, every=0.1):
 
 
 class Client:
-    """One WebSocket session: `cmd` sends a frame and returns the JSON reply."""
+    """One WebSocket session: `cmd` sends a frame and returns the JSON reply.
+    `keepalive=False` sends no pings (lluavd answers a ping only after the
+    session's pending command, which can outlast websockets' 20 s ping
+    timeout on a lossy link)."""
 
-    def __init__(self, url):
+    def __init__(self, url, keepalive=True):
         self._stack = contextlib.ExitStack()
-        self.ws = self._stack.enter_context(connect(url, open_timeout=10, close_timeout=5))
+        ping = {} if keepalive else {"ping_interval": None}
+        self.ws = self._stack.enter_context(connect(url, open_timeout=10, close_timeout=5, **ping))
 
     def cmd(self, text, timeout=30.0):
         self.ws.send(text)
@@ -92,8 +96,8 @@ class Daemon:
         self.url = line.split()[-1]
         self.clients = []
 
-    def client(self, login=True):
-        c = Client(self.url)
+    def client(self, login=True, keepalive=True):
+        c = Client(self.url, keepalive)
         self.clients.append(c)
         if login:
             c.ok(f"login {PASSWORD}")

@@ -40,7 +40,7 @@ sys.path.insert(0, str(HERE))
 from conftest import Daemon, free_udp_port, wait_for  # noqa: E402
 from hostile import Neighbour  # noqa: E402
 from mavsdk_autopilot import MavsdkAutopilot  # noqa: E402
-from radio import per_second, setpoints_since, unrequested, waypoints  # noqa: E402
+from radio import cancelled_transfers, per_second, setpoints_since, unrequested, waypoints  # noqa: E402
 from relay import LossyRelay  # noqa: E402
 
 STEPS = ("link", "mission_3", "mission_50", "takeoff", "hover", "set_sp_ned", "mw_exec", "land")
@@ -124,7 +124,7 @@ def flight(exe, loss, seed):
         daemon = Daemon(pathlib.Path(tmp), port)
         relay = LossyRelay(port, seed, radio, radio)
         ap = MavsdkAutopilot(relay.port)
-        client = daemon.client()
+        client = daemon.client(keepalive=False)
         f = Flight(client, ap)
         start = time.monotonic()
         try:
@@ -133,10 +133,11 @@ def flight(exe, loss, seed):
             took = time.monotonic() - start
             ap.close()
             extra = unrequested(relay)
+            cancelled = cancelled_transfers(relay)
             counters = relay.counters()
             relay.close()
             daemon.stop()
-    return {"loss": loss, "seed": seed, "steps": f.steps, "unrequested": extra,
+    return {"loss": loss, "seed": seed, "steps": f.steps, "unrequested": extra, "cancelled_transfers": cancelled,
             "seconds": round(took, 1), "relay": counters}
 
 

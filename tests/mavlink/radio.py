@@ -58,14 +58,27 @@ def stream_rate(autopilot, seconds=4):
 
 def unrequested(relay, since=0.0, disarm_asked=False, clear_asked=False):
     """Cleanup messages that reached the autopilot although no client asked
-    for them: a disarm, MISSION_CLEAR_ALL, a cancelled mission transfer."""
+    for them: a disarm, MISSION_CLEAR_ALL, or a transfer cancelled after
+    its last item reached the autopilot (which may then hold the whole
+    mission; cancelling a transfer that stalled before its end is the
+    mission protocol's own way to give up, and leaves the old mission)."""
     found = []
+    count, last_sent = None, False
     for m in relay.received(since=since):
         kind = m.get_type()
         if kind == "COMMAND_LONG" and m.command == ARM_DISARM and m.param1 == 0 and not disarm_asked:
             found.append(f"DISARM (param2 {m.param2})")
         elif kind == "MISSION_CLEAR_ALL" and not clear_asked:
             found.append("MISSION_CLEAR_ALL")
-        elif kind == "MISSION_ACK" and m.type != MISSION_ACCEPTED:
-            found.append(f"MISSION_ACK {m.type}")
+        elif kind == "MISSION_COUNT":
+            count, last_sent = m.count, False
+        elif kind == "MISSION_ITEM_INT" and count is not None and m.seq == count - 1:
+            last_sent = True
+        elif kind == "MISSION_ACK" and m.type != MISSION_ACCEPTED and last_sent:
+            found.append(f"MISSION_ACK {m.type} after the last item")
     return found
+
+
+def cancelled_transfers(relay):
+    """MISSION_ACKs other than accepted that lluavd sent the autopilot."""
+    return sum(1 for m in relay.received("MISSION_ACK") if m.type != MISSION_ACCEPTED)
