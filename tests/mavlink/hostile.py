@@ -10,9 +10,10 @@ sends to lluavd's UDP port while a flight runs.
 - foreign heartbeats: 2 Hz from another system id (an ArduPilot by
   default), with HOME_POSITION, as a second vehicle on a shared port;
 - spoofed answers: MISSION_REQUEST_INT / MISSION_REQUEST (in range and out
-  of range), MISSION_ACK (accepted, error, cancelled) and COMMAND_ACK
-  (accepted, denied, for the flight commands) claiming the autopilot's
-  system and component ids, N per second in all.
+  of range), MISSION_ACK (accepted, error, cancelled), COMMAND_ACK
+  (accepted, denied, for the flight commands), a disarmed HEARTBEAT and a
+  HOME_POSITION elsewhere, claiming the autopilot's system and component
+  ids, N per second in all.
 
 Everything lluavd sends to it is counted by message type. On SIGTERM it
 prints one JSON line: {"sent": {...}, "received": {...}}.
@@ -41,6 +42,8 @@ SPOOFED_COMMANDS = (mav.MAV_CMD_COMPONENT_ARM_DISARM, mav.MAV_CMD_NAV_TAKEOFF, m
                     mav.MAV_CMD_DO_SET_MODE, mav.MAV_CMD_MISSION_START)
 # lluavd's system (the autopilot's, by default) and component ids.
 LLUAVD = (1, 191)
+# A home far from the autopilot's (lat, lon in 1e-7 degrees).
+SPOOFED_HOME = (473000000, 85000000)
 AUTOPILOTS = {"ardupilot": mav.MAV_AUTOPILOT_ARDUPILOTMEGA, "px4": mav.MAV_AUTOPILOT_PX4}
 
 
@@ -68,8 +71,8 @@ def garbage(rng):
 
 
 def spoof(rng, link):
-    """One spoofed answer, as if from the autopilot."""
-    kind = rng.randrange(4)
+    """One spoofed answer or piece of telemetry, as if from the autopilot."""
+    kind = rng.randrange(6)
     seq = rng.choice([0, 1, 2, rng.randint(3, 60), 999, 65535])
     if kind == 0:
         link.mission_request_int_send(LLUAVD[0], LLUAVD[1], seq)
@@ -81,9 +84,16 @@ def spoof(rng, link):
         link.mission_ack_send(LLUAVD[0], LLUAVD[1], rng.choice([mav.MAV_MISSION_ACCEPTED, mav.MAV_MISSION_ERROR,
                                                 mav.MAV_MISSION_OPERATION_CANCELLED]))
         return "MISSION_ACK"
-    link.command_ack_send(rng.choice(SPOOFED_COMMANDS),
-                          rng.choice([mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_DENIED]), 0, 0, *LLUAVD)
-    return "COMMAND_ACK"
+    if kind == 3:
+        link.command_ack_send(rng.choice(SPOOFED_COMMANDS),
+                              rng.choice([mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_DENIED]), 0, 0, *LLUAVD)
+        return "COMMAND_ACK"
+    if kind == 4:
+        # Disarmed, whatever the vehicle is doing.
+        link.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC, 0, 0, mav.MAV_STATE_STANDBY)
+        return "HEARTBEAT"
+    link.home_position_send(SPOOFED_HOME[0], SPOOFED_HOME[1], 100000, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)
+    return "HOME_POSITION"
 
 
 class Schedule:
@@ -139,7 +149,7 @@ def run(args):
             foreign.heartbeat_send(mav.MAV_TYPE_QUADROTOR, AUTOPILOTS[args.heartbeat_autopilot],
                                    mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mav.MAV_STATE_STANDBY)
             send(out.take(), "HEARTBEAT")
-            foreign.home_position_send(473000000, 85000000, 100000, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)
+            foreign.home_position_send(*SPOOFED_HOME, 100000, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)
             send(out.take(), "HOME_POSITION")
         ready, _, _ = select.select([sock], [], [], 0.002)
         while ready:

@@ -11,7 +11,7 @@ import pytest
 from conftest import Daemon, free_udp_port, stays, wait_for
 from fault_autopilot import mav
 from hostile import Neighbour
-from mavsdk_autopilot import MavsdkAutopilot
+from mavsdk_autopilot import HOME, MavsdkAutopilot
 from radio import ARM_DISARM, hover, steer, stream_rate, waypoints
 
 
@@ -55,6 +55,7 @@ def test_another_vehicles_heartbeats_do_not_take_the_link(hovering):
               lambda: (s := client.state())["autopilot"] == "generic" and s["link"] == "up", 3.0)
         steer(client, ap, 2, 1, -3)
         assert client.ok("get_param MPC_XY_VEL_MAX")["param"] == {"MPC_XY_VEL_MAX": 12.0}
+        assert client.state()["home_global"]["lat"] == pytest.approx(HOME[0])
     finally:
         result = neighbour.stop()
     assert result["sent"]["HEARTBEAT"] >= 4
@@ -74,6 +75,8 @@ def test_spoofed_acknowledgements_and_mission_requests_change_nothing(hovering):
         wait_for("the mission flown", lambda: ap.mode == "hold" and math.dist(
             ap.position()[:2], [3 * math.cos(4 * math.pi / 3), 3 * math.sin(4 * math.pi / 3)]) < 0.3,
             timeout=40)
+        stays("the autopilot's own telemetry in the state", lambda: (s := client.state())["armed"]
+              and s["home_global"]["lat"] == pytest.approx(HOME[0]), 2.0, every=0.02)
     finally:
         result = neighbour.stop()
     assert sum(result["sent"].values()) >= 200, result["sent"]
@@ -118,7 +121,7 @@ def test_an_autopilot_that_heartbeats_after_another_vehicle_is_the_one_followed(
             state = wait_for("the autopilot followed", lambda: (s := client.state())["link"] == "up"
                              and s["home_global"] and s)
             assert state["autopilot"] == "generic"
-            assert state["home_global"]["lat"] == pytest.approx(47.397742)
+            assert state["home_global"]["lat"] == pytest.approx(HOME[0])
             client.ok("takeoff")
             arms = wait_for("ARM at the autopilot", lambda: ap.commands_named(ARM_DISARM))
             assert arms[0]["target_system"] == 1
