@@ -3,8 +3,9 @@
 # MAVSDK library as the autopilot (a whole flight) and a pymavlink autopilot
 # that misbehaves on purpose, through the real lluavd over WebSocket and UDP
 # on loopback; a radio link (a seeded lossy relay), a hostile neighbour on
-# lluavd's port, autopilots replaced mid-flight and message signing. Installs what it needs (a venv under target/, pinned PyPI
-# packages) idempotently. LLUAVD=path uses that lluavd instead of building
+# lluavd's port, autopilots replaced mid-flight and message signing.
+# Installs what it needs (a venv under target/, pinned PyPI packages)
+# idempotently. LLUAVD=path uses that lluavd instead of building
 # one; MAVLINK_VENV=dir puts the venv elsewhere. Extra arguments go to pytest.
 set -euo pipefail
 # shellcheck source=scripts/lib.sh
