@@ -10,6 +10,7 @@ from conftest import wait_for
 
 ARM_DISARM = 400
 NAV_TAKEOFF = 22
+NAV_LAND = 21
 DO_SET_MODE = 176
 MISSION_ACCEPTED = 0
 NOT_ON_AUTOPILOT = "Invalid arguments: mission {} is not on the autopilot"

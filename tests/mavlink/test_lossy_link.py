@@ -11,8 +11,8 @@ import pytest
 
 from conftest import free_udp_port, stays, wait_for
 from mavsdk_autopilot import MavsdkAutopilot
-from radio import (ARM_DISARM, NAV_TAKEOFF, hover, setpoints_since, steer, stream_rate, unrequested,
-                   waypoints)
+from radio import (ARM_DISARM, DO_SET_MODE, NAV_LAND, NAV_TAKEOFF, hover, setpoints_since, steer, stream_rate,
+                   unrequested, waypoints)
 from relay import LossyRelay
 
 RADIO = dict(loss=0.15, duplicate=0.05, reorder=0.05, latency=0.02, jitter=0.02)
@@ -103,6 +103,34 @@ def test_a_takeoff_whose_ack_is_lost_answers_0_when_the_vehicle_took_off(relayed
     wait_for("climbing", lambda: ap.position()[2] < -1.0)
     stays("no disarm sent", lambda: not unrequested(relay), 2.0)
     assert ap.armed
+
+
+@pytest.mark.parametrize("command", ["land", "disarm", "set_sp_ned 1:1:-3:0"])
+def test_a_flight_command_whose_ack_is_lost_answers_0_when_the_autopilot_obeyed(relayed, command):
+    _, relay, ap, client = relayed()
+    hover(client, ap)
+    mav_cmd = {"land": NAV_LAND, "disarm": ARM_DISARM, "set_sp_ned": DO_SET_MODE}[command.split()[0]]
+    relay.up.drop_if = lost_ack("COMMAND_ACK", mav_cmd)
+    r = client.cmd(command)
+    assert r["ret"] == 0, r
+    obeyed = {"land": lambda: ap.mode in ("land", "landed", "ready"), "disarm": lambda: not ap.armed,
+              "set_sp_ned": lambda: ap.mode == "offboard"}[command.split()[0]]
+    assert obeyed()
+    assert unrequested(relay, disarm_asked=command == "disarm") == []
+
+
+def test_reordered_and_duplicated_telemetry_is_not_a_new_autopilot(relayed):
+    """Older ATTITUDEs arriving after newer ones must not read as a reboot."""
+    heavy = dict(reorder=0.3, duplicate=0.2, latency=0.01, jitter=0.05)
+    _, relay, ap, client = relayed(seed=5, up=heavy, down=heavy)
+    hover(client, ap)
+    steer(client, ap, 2, 0, -3)
+    setpoint = client.state()["setpoint"]
+    rate = stream_rate(ap, 5)
+    assert min(rate) >= 2, f"setpoints per second: {rate}"
+    state = client.state()
+    assert (state["armed"], state["fsm"], state["setpoint"]) == (True, "hover", setpoint)
+    assert relay.counters()["up"]["reordered"] > 50
 
 
 def test_a_takeoff_that_never_reached_the_autopilot_answers_minus_3_and_nothing_is_cleaned_up(relayed):
