@@ -67,6 +67,11 @@ MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
 MAV_CMD_MISSION_START = 300
 MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_DENIED = 2
+# The model's modes as the heartbeat reports them.
+HEARTBEAT_MODES = {"ready": FlightMode.READY, "takeoff": FlightMode.TAKEOFF, "hold": FlightMode.HOLD,
+                   "offboard": FlightMode.OFFBOARD, "land": FlightMode.LAND, "landed": FlightMode.LAND,
+                   "rtl": FlightMode.RETURN_TO_LAUNCH, "mission": FlightMode.MISSION}
 FLOAT_PARAMS = {"MPC_XY_VEL_MAX": 12.0, "MIS_TAKEOFF_ALT": 2.5}
 INT_PARAMS = {"SYS_AUTOSTART": 4001, "COM_RC_LOSS_T": -7}
 
@@ -187,17 +192,22 @@ class MavsdkAutopilot:
     def _on_direct_command(self, msg, _ud):
         fields = json.loads(msg.fields_json)
         cmd = fields["command"]
+        result = MAV_RESULT_ACCEPTED
         with self.lock:
-            if cmd == MAV_CMD_NAV_LAND:
+            if not self.armed:
+                # As PX4: no landing, return or mission on the ground.
+                result = MAV_RESULT_DENIED
+            elif cmd == MAV_CMD_NAV_LAND and self.mode != "landed":
                 self.mode = "land"
-            elif cmd == MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            elif cmd == MAV_CMD_NAV_RETURN_TO_LAUNCH and self.mode not in ("land", "landed"):
                 self.mode = "rtl"
-            elif cmd == MAV_CMD_MISSION_START and self.holding:
+            elif cmd == MAV_CMD_MISSION_START and self.holding and self.mode != "mission":
+                # A repeated MISSION_START (its ack lost) does not restart the mission.
                 self.mission_targets = [
                     geo.ned_from(HOME, it.x * 1e-7, it.y * 1e-7, it.z) for it in self.holding
                 ]
                 self.mode = "mission"
-        ack = {"command": cmd, "result": MAV_RESULT_ACCEPTED, "progress": 0,
+        ack = {"command": cmd, "result": result, "progress": 0,
                "result_param2": 0, "target_system": msg.system_id,
                "target_component": msg.component_id}
         self.direct.send_message(MavlinkMessage(
@@ -271,12 +281,19 @@ class MavsdkAutopilot:
     def _run(self):
         tick = 0
         last = time.monotonic()
+        reported = None
         while not self._stop.is_set():
             now = time.monotonic()
             with self.lock:
                 landed, completed = self._step(now - last)
                 disarm = self.mode == "landed" and self.armed
+                mode = self.mode
             last = now
+            if mode != reported:
+                # The heartbeat says the mode the model flies in, as PX4's does
+                # (from this thread: MAVSDK calls back on its own).
+                self.action.set_flight_mode(HEARTBEAT_MODES.get(mode, FlightMode.HOLD))
+                reported = mode
             if completed:
                 self.mission.set_current_item_complete()
             if disarm:

@@ -11,6 +11,8 @@ from conftest import wait_for
 ARM_DISARM = 400
 NAV_TAKEOFF = 22
 NAV_LAND = 21
+NAV_RETURN_TO_LAUNCH = 20
+MISSION_START = 300
 DO_SET_MODE = 176
 MISSION_ACCEPTED = 0
 NOT_ON_AUTOPILOT = "Invalid arguments: mission {} is not on the autopilot"

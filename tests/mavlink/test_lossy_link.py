@@ -11,8 +11,8 @@ import pytest
 
 from conftest import free_udp_port, stays, wait_for
 from mavsdk_autopilot import MavsdkAutopilot
-from radio import (ARM_DISARM, DO_SET_MODE, NAV_LAND, NAV_TAKEOFF, hover, setpoints_since, steer, stream_rate,
-                   unrequested, waypoints)
+from radio import (ARM_DISARM, DO_SET_MODE, MISSION_START, NAV_LAND, NAV_RETURN_TO_LAUNCH, NAV_TAKEOFF, hover,
+                   setpoints_since, steer, stream_rate, unrequested, waypoints)
 from relay import LossyRelay
 
 RADIO = dict(loss=0.15, duplicate=0.05, reorder=0.05, latency=0.02, jitter=0.02)
@@ -105,17 +105,29 @@ def test_a_takeoff_whose_ack_is_lost_answers_0_when_the_vehicle_took_off(relayed
     assert ap.armed
 
 
-@pytest.mark.parametrize("command", ["land", "disarm", "set_sp_ned 1:1:-3:0"])
+LOST_ACKS = {
+    # command: (its MAV_CMD, what the autopilot does when it obeys)
+    "land": (NAV_LAND, lambda ap: ap.mode in ("land", "landed", "ready")),
+    "rtl": (NAV_RETURN_TO_LAUNCH, lambda ap: ap.mode == "rtl"),
+    "disarm": (ARM_DISARM, lambda ap: not ap.armed),
+    "set_sp_ned 1:1:-3:0": (DO_SET_MODE, lambda ap: ap.mode == "offboard"),
+    "mw_exec 8:1,2,3": (MISSION_START, lambda ap: ap.mode == "mission"),
+}
+
+
+@pytest.mark.parametrize("command", list(LOST_ACKS))
 def test_a_flight_command_whose_ack_is_lost_answers_0_when_the_autopilot_obeyed(relayed, command):
     _, relay, ap, client = relayed()
+    client.ok(f"mission 8:{waypoints(3, radius=4)}")
     hover(client, ap)
-    mav_cmd = {"land": NAV_LAND, "disarm": ARM_DISARM, "set_sp_ned": DO_SET_MODE}[command.split()[0]]
+    if command == "rtl":
+        # Far enough that the return outlasts lluavd's three attempts.
+        steer(client, ap, 20, 0, -3)
+    mav_cmd, obeyed = LOST_ACKS[command]
     relay.up.drop_if = lost_ack("COMMAND_ACK", mav_cmd)
     r = client.cmd(command)
     assert r["ret"] == 0, r
-    obeyed = {"land": lambda: ap.mode in ("land", "landed", "ready"), "disarm": lambda: not ap.armed,
-              "set_sp_ned": lambda: ap.mode == "offboard"}[command.split()[0]]
-    assert obeyed()
+    assert obeyed(ap)
     assert unrequested(relay, disarm_asked=command == "disarm") == []
 
 
