@@ -15,6 +15,8 @@ from radio import (ARM_DISARM, DO_SET_MODE, MISSION_START, NAV_LAND, NAV_RETURN_
                    setpoints_since, steer, stream_rate, unrequested, waypoints)
 from relay import LossyRelay
 
+# PX4's custom mode for AUTO.RTL: main mode AUTO (4), sub mode RTL (5).
+PX4_AUTO_RTL = 4 << 16 | 5 << 24
 RADIO = dict(loss=0.15, duplicate=0.05, reorder=0.05, latency=0.02, jitter=0.02)
 
 
@@ -129,6 +131,24 @@ def test_a_flight_command_whose_ack_is_lost_answers_0_when_the_autopilot_obeyed(
     assert r["ret"] == 0, r
     assert obeyed(ap)
     assert unrequested(relay, disarm_asked=command == "disarm") == []
+
+
+def test_a_return_over_before_its_lost_ack_stops_being_waited_for_answers_0(relayed):
+    """From 4 m away the return takes about 2 s, within lluavd's three
+    attempts: heartbeats said AUTO.RTL while lluavd waited, then the vehicle
+    landed and disarmed. It happened, so the answer is 0."""
+    _, relay, ap, client = relayed()
+    relay.up.keep_log = True
+    hover(client, ap)
+    steer(client, ap, 4, 0, -2.5)
+    relay.up.drop_if = lost_ack("COMMAND_ACK", NAV_RETURN_TO_LAUNCH)
+    sent = time.monotonic()
+    r = client.cmd("rtl")
+    assert ap.commands_named(NAV_RETURN_TO_LAUNCH) and not ap.armed, "the return did not happen (the premise)"
+    with relay.lock:
+        modes = [m.custom_mode for t, m in relay.up.log if t >= sent and m.get_type() == "HEARTBEAT"]
+    assert PX4_AUTO_RTL in modes, f"no AUTO.RTL heartbeat reached lluavd (the premise): {modes}"
+    assert r["ret"] == 0, r
 
 
 def test_reordered_and_duplicated_telemetry_is_not_a_new_autopilot(relayed):
