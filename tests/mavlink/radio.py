@@ -26,6 +26,12 @@ def waypoints(n, radius=8.0):
     return json.dumps({"waypoints": wps}, separators=(",", ":"))
 
 
+def holds(autopilot, n):
+    """Waits for the autopilot to hold a mission of `n` items: MAVSDK hands
+    an upload to its callback after its MISSION_ACK went out."""
+    return wait_for(f"a mission of {n} items on the autopilot", lambda: len(autopilot.holding) == n, timeout=5)
+
+
 def hover(client, autopilot):
     """Takes off and waits for the hover; returns the takeoff answer."""
     r = client.ok("takeoff")

@@ -9,7 +9,7 @@ import pytest
 
 from conftest import free_udp_port, stays, wait_for
 from mavsdk_autopilot import MavsdkAutopilot
-from radio import ARM_DISARM, NAV_TAKEOFF, NOT_ON_AUTOPILOT, hover, setpoints_since, steer, waypoints
+from radio import ARM_DISARM, NAV_TAKEOFF, NOT_ON_AUTOPILOT, holds, hover, setpoints_since, steer, waypoints
 from relay import LossyRelay
 
 
@@ -32,7 +32,7 @@ def fly_with_a_mission(client, ap):
     """Mission 42 uploaded, then hovering at (2, 0, -3) with a setpoint streamed."""
     wait_for("link up with home", lambda: (s := client.state())["link"] == "up" and s["home_global"])
     client.ok(f"mission 42:{waypoints(3, radius=3)}")
-    assert len(ap.holding) == 3
+    holds(ap, 3)
     hover(client, ap)
     steer(client, ap, 2, 0, -3)
 
@@ -54,7 +54,7 @@ def check_flown_as_a_new_vehicle(client, new, system_id=1, known=0.0):
     assert new.commands_named(NAV_TAKEOFF)
     r = client.cmd("mw_exec 42:1,2,3")
     if r["ret"] == 0:
-        assert len(new.holding) == 3, "mw_exec answered 0 but the mission is not on the autopilot"
+        holds(new, 3)
         wait_for("the mission started", lambda: new.mode == "mission")
     else:
         assert (r["ret"], r["msg"]) == (-2, NOT_ON_AUTOPILOT.format(42)), r

@@ -11,8 +11,8 @@ import pytest
 
 from conftest import free_udp_port, stays, wait_for
 from mavsdk_autopilot import MavsdkAutopilot
-from radio import (ARM_DISARM, DO_SET_MODE, MISSION_START, NAV_LAND, NAV_RETURN_TO_LAUNCH, NAV_TAKEOFF, hover,
-                   setpoints_since, steer, stream_rate, unrequested, waypoints)
+from radio import (ARM_DISARM, DO_SET_MODE, MISSION_START, NAV_LAND, NAV_RETURN_TO_LAUNCH, NAV_TAKEOFF, holds,
+                   hover, setpoints_since, steer, stream_rate, unrequested, waypoints)
 from relay import LossyRelay
 
 # PX4's custom mode for AUTO.RTL: main mode AUTO (4), sub mode RTL (5).
@@ -47,7 +47,7 @@ def test_a_whole_flight_flies_through_15_percent_loss_both_ways(relayed):
     steer(client, ap, 3, 2, -4)
     r = client.ok(f"mission 42:{waypoints(3, radius=4)}")
     assert r["waypoints"] == 3
-    assert len(ap.holding) == 3
+    holds(ap, 3)
     client.ok("mw_exec 42:1,2,3")
     last = ap.holding[-1]
     wait_for("the last waypoint reached", lambda: ap.mode == "hold" and math.dist(
@@ -179,7 +179,7 @@ def test_a_lost_final_mission_ack_is_read_back_not_cancelled(relayed):
     relay.up.drop_if = lambda m: m.get_type() == "MISSION_ACK"
     r = client.cmd(f"mission 5:{waypoints(3)}")
     assert r["ret"] == 0, r
-    assert len(ap.holding) == 3
+    holds(ap, 3)
     stays("no cleanup sent", lambda: not unrequested(relay), 2.0)
     assert len(ap.holding) == 3 and ap.clears == 0
 

@@ -12,7 +12,7 @@ from conftest import Daemon, free_udp_port, stays, wait_for
 from fault_autopilot import mav
 from hostile import Neighbour
 from mavsdk_autopilot import HOME, MavsdkAutopilot
-from radio import ARM_DISARM, hover, steer, stream_rate, waypoints
+from radio import ARM_DISARM, holds, hover, steer, stream_rate, waypoints
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_spoofed_acknowledgements_and_mission_requests_change_nothing(hovering):
         for ext_id, n in ((50, 50), (3, 3)):
             r = client.cmd(f"mission {ext_id}:{waypoints(n, radius=3)}")
             assert r["ret"] == 0, r
-            assert len(ap.holding) == n
+            holds(ap, n)
         client.ok("mw_exec 3:1,2,3")
         wait_for("the mission started on the autopilot", lambda: ap.mode == "mission")
         wait_for("the mission flown", lambda: ap.mode == "hold" and math.dist(
