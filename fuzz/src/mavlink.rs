@@ -5,8 +5,10 @@
 //! mission protocols over a scripted link. Checked: nothing panics; what
 //! lluavd knows stays bounded; a packet that is not the followed
 //! autopilot's changes nothing; no packet starts or moves a setpoint
-//! stream; the protocols send only what the command a client asked for
-//! sends (never a cancel, a clear or another command).
+//! stream; after the autopilot's heartbeat says disarmed, only the
+//! telemetry says whether the vehicle flies; the protocols send only
+//! what the command a client asked for sends (never a cancel, a clear or
+//! another command).
 //!
 //! Input, byte by byte: the first byte sets signing (bit 0) and `any`
 //! (bit 1); then operations, each a byte `op % 8` followed by its own
@@ -150,6 +152,15 @@ fn receive(k: &mut Known, from: Option<SocketAddr>, header: &MavHeader, msg: &Ma
         after.setpoint.is_none() || after.setpoint == before.setpoint,
         "a packet started or moved the setpoint stream"
     );
+    // The autopilot's heartbeat saying disarmed: lluavd's word that a
+    // takeoff is under way no longer counts, the telemetry does.
+    if receipt != Receipt::Dropped && matches!(msg, MavMessage::HEARTBEAT(_)) && !k.tel().armed() {
+        assert_eq!(
+            k.airborne(now),
+            k.tel().airborne(),
+            "a takeoff still counted after a disarmed heartbeat"
+        );
+    }
     assert!(k.footprint() <= FOOTPRINT_BOUND, "{} entries", k.footprint());
 }
 
@@ -197,13 +208,11 @@ pub fn run(data: &[u8]) {
             2 => now += i64::from(input.u16()) * 10,
             3 => k.stream(input.pose(), SessionId(u32::from(input.byte() % 4))),
             4 => k.release(SessionId(u32::from(input.byte() % 4))),
-            5 => {
-                if input.byte() % 2 == 0 {
-                    k.took_off(now);
-                } else {
-                    k.disarmed();
-                }
-            }
+            5 => match input.byte() % 3 {
+                0 => k.took_off(now),
+                1 => k.disarmed(),
+                _ => k.landing(),
+            },
             6 => upload_steps(&mut input),
             _ => protocols(&mut input),
         }

@@ -18,7 +18,7 @@
 //! | command | MAVLink |
 //! |---|---|
 //! | `state` | the cache: `armed` (heartbeat), `fsm` (from armed, `EXTENDED_SYS_STATE` and the mode), `position`/`velocity` (`LOCAL_POSITION_NED`), `yaw` (`ATTITUDE`), `altitude` (`GLOBAL_POSITION_INT.relative_alt`), `battery` (`BATTERY_STATUS`/`SYS_STATUS`), `setpoint` (the streamed one or null), `home` (`HOME_POSITION`, local), plus `link` (`up`/`lost`), `heartbeat_age_ms`, `autopilot`, `mode`, `landed`, `global`, `home_global`, `mission` (the run's progress) |
-//! | `takeoff` | ArduPilot: `DO_SET_MODE` GUIDED; then `COMPONENT_ARM_DISARM` (arm), `NAV_TAKEOFF` to the configured altitude above home (disarms again if the autopilot refuses it; never when its acknowledgement is lost); once it answers 0, `fsm` is `takeoff` and the vehicle counts as flying until the telemetry shows the climb (at most 10 s) |
+//! | `takeoff` | ArduPilot: `DO_SET_MODE` GUIDED; then `COMPONENT_ARM_DISARM` (arm), `NAV_TAKEOFF` to the configured altitude above home (disarms again if the autopilot refuses it; never when its acknowledgement is lost); once it answers 0, `fsm` is `takeoff` and the vehicle counts as flying until the telemetry shows the climb, a heartbeat shows it disarmed or `land`/`disarm` answers 0 (at most 10 s) |
 //! | `land` | `NAV_LAND` |
 //! | `rtl` | `NAV_RETURN_TO_LAUNCH` |
 //! | `mrtl` | ArduPilot: `DO_SET_MODE` SMART_RTL; PX4: not supported (-2) |
@@ -121,7 +121,7 @@ pub use signing::SigningKey;
 use crate::files::Files;
 use crate::vehicle::mission::{self as mission_json, Fence};
 use crate::vehicle::{Ned, Progress, Refusal, Reply, Snapshot, Vehicle};
-use answer::{Answer, Captured, Rebooting, Recording, Saved};
+use answer::{Acknowledged, Answer, Captured, Rebooting, Recording, Saved};
 use autopilot::{Flavour, Mode, Phase};
 use effect::Effect;
 use link::{Link, LinkConfig};
@@ -267,23 +267,18 @@ impl MavlinkVehicle {
     }
 
     /// A flight command for a flying vehicle whose `effect` the telemetry
-    /// shows: the setpoint stream stops.
+    /// shows: the setpoint stream stops; `then` answers it once done.
     fn redirect(
         &self,
         id: CommandId,
         ctx: &Context,
         (cmd, params): (MavCmd, [f32; 7]),
         effect: impl FnOnce(Flavour) -> Effect,
+        then: impl Then<Acknowledged>,
     ) -> Result<Progress, MavError> {
         let flavour = self.flying(ctx)?;
         self.link.with(Known::stop_stream);
-        let op = ops::command(
-            Arc::clone(&self.link),
-            cmd,
-            params,
-            Some(effect(flavour)),
-            ops::acknowledged,
-        );
+        let op = ops::command(Arc::clone(&self.link), cmd, params, Some(effect(flavour)), then);
         Ok(self.pend(id, op))
     }
 
@@ -309,11 +304,12 @@ impl MavlinkVehicle {
             }
             (C::Land, _) => {
                 let land = (MavCmd::MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, nan, nan, nan, nan]);
-                self.redirect(cmd.id(), ctx, land, Effect::Landing)
+                self.redirect(cmd.id(), ctx, land, Effect::Landing, ops::landing)
             }
             (C::Rtl, _) => {
                 let rtl = (MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH, [0.0; 7]);
-                self.redirect(cmd.id(), ctx, rtl, |f| Effect::Phase(f, Phase::Rtl))
+                let effect = |f| Effect::Phase(f, Phase::Rtl);
+                self.redirect(cmd.id(), ctx, rtl, effect, ops::acknowledged)
             }
             (C::Mrtl, _) => {
                 let flavour = self.flying(ctx)?;
@@ -321,7 +317,8 @@ impl MavlinkVehicle {
                     .set_mode_params(Mode::SmartRtl)
                     .ok_or(MavError::Unsupported)?;
                 let smart_rtl = (MavCmd::MAV_CMD_DO_SET_MODE, [p1, p2, p3, 0.0, 0.0, 0.0, 0.0]);
-                self.redirect(cmd.id(), ctx, smart_rtl, |f| Effect::Mode(f, Mode::SmartRtl))
+                let effect = |f| Effect::Mode(f, Mode::SmartRtl);
+                self.redirect(cmd.id(), ctx, smart_rtl, effect, ops::acknowledged)
             }
             (C::Disarm, _) => {
                 self.link_up(ctx)?;

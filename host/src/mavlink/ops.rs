@@ -50,6 +50,13 @@ pub fn acknowledged(known: &mut Known, now_ms: i64) -> Acknowledged {
     }
 }
 
+/// `land`'s answer: a vehicle that just took off no longer counts as
+/// flying on lluavd's word (the telemetry tells), and the state it left.
+pub fn landing(known: &mut Known, now_ms: i64) -> Acknowledged {
+    known.landing();
+    acknowledged(known, now_ms)
+}
+
 /// Switches the flight mode.
 pub async fn set_mode(link: &Link, flavour: Flavour, mode: Mode) -> Result<(), MavError> {
     let [p1, p2, p3] = flavour.set_mode_params(mode).ok_or(MavError::Unsupported)?;

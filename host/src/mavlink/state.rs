@@ -20,7 +20,8 @@ use super::protocol::Target;
 use super::telemetry::{Status, Telemetry};
 
 /// How long after `takeoff` answered 0 the vehicle counts as taking off
-/// without the telemetry showing it: a climb shows within seconds.
+/// without the telemetry showing it: a climb shows within seconds. A
+/// disarm shown or commanded, or a landing commanded, ends it sooner.
 pub const TAKEOFF_GRACE_MS: i64 = 10_000;
 
 /// The setpoint being streamed and the sessions that set it.
@@ -51,7 +52,9 @@ pub struct Known {
     missions: Missions,
     recording: bool,
     images: u32,
-    /// When `takeoff` answered 0, until the telemetry shows the climb.
+    /// When `takeoff` answered 0, until the telemetry shows the climb,
+    /// the autopilot's heartbeat shows it disarmed, or a `land` or
+    /// `disarm` answers 0.
     took_off_ms: Option<i64>,
     /// Packets dropped as foreign since the last [`Known::take_foreign`].
     foreign: u64,
@@ -94,7 +97,14 @@ impl Known {
         };
         self.tel.observe(msg);
         self.missions.observe(msg);
-        if self.tel.airborne() {
+        // Climbing, or disarmed after `takeoff` answered (the autopilot
+        // gave up, or was landed or disarmed by other means): the
+        // telemetry tells again, so nothing streams to a vehicle on the
+        // ground. A heartbeat the radio held back from before the arming
+        // ends it too; the cost is a `-1` until the climb shows, never a
+        // setpoint to a disarmed vehicle.
+        let disarmed = matches!(msg, MavMessage::HEARTBEAT(_)) && !self.tel.armed();
+        if self.tel.airborne() || disarmed {
             self.took_off_ms = None;
         }
         receipt
@@ -172,6 +182,12 @@ impl Known {
     pub fn disarmed(&mut self) {
         self.took_off_ms = None;
         self.stream = None;
+    }
+
+    /// `land` answered 0: the vehicle no longer counts as flying on
+    /// lluavd's word; the telemetry tells whether it still flies.
+    pub fn landing(&mut self) {
+        self.took_off_ms = None;
     }
 
     fn taking_off(&self, now_ms: i64) -> bool {

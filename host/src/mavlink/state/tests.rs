@@ -211,6 +211,54 @@ fn a_takeoff_the_telemetry_never_shows_stops_counting_and_a_disarm_ends_it() {
 }
 
 #[test]
+fn a_disarmed_heartbeat_after_takeoff_answered_ends_the_takeoff() {
+    let mut k = Known::new(Wanted::System(1));
+    k.receive(addr(1), &header(1), &heartbeat(true), 0);
+    k.took_off(1000);
+    // Another message saying nothing of the arming changes nothing.
+    k.receive(addr(1), &header(1), &attitude(1_500), 1500);
+    assert_eq!((k.fsm(1500), k.airborne(1500)), ("takeoff", true));
+    k.receive(addr(1), &header(1), &heartbeat(false), 2000);
+    assert_eq!((k.fsm(2000), k.airborne(2000)), ("disarmed", false));
+    // Armed again without a takeoff: still on the ground.
+    k.receive(addr(1), &header(1), &heartbeat(true), 2500);
+    assert_eq!((k.fsm(2500), k.airborne(2500)), ("armed", false));
+}
+
+#[test]
+fn a_disarmed_heartbeat_from_another_system_does_not_end_the_takeoff() {
+    let mut k = Known::new(Wanted::System(1));
+    k.receive(addr(1), &header(1), &heartbeat(true), 0);
+    k.took_off(1000);
+    for (from, system) in [(addr(2), 1), (addr(1), 2)] {
+        assert_eq!(
+            k.receive(from, &header(system), &heartbeat(false), 1500),
+            Receipt::Dropped
+        );
+    }
+    assert_eq!((k.fsm(1500), k.airborne(1500)), ("takeoff", true));
+}
+
+#[test]
+fn a_landing_answered_ends_the_takeoff_and_the_telemetry_tells() {
+    let mut k = Known::new(Wanted::System(1));
+    k.receive(addr(1), &header(1), &heartbeat(true), 0);
+    k.took_off(1000);
+    k.landing();
+    assert_eq!((k.fsm(1100), k.airborne(1100)), ("armed", false));
+    // Once the climb showed, landing leaves the telemetry to say so.
+    k.took_off(2000);
+    k.receive(
+        addr(1),
+        &header(1),
+        &landed(MavLandedState::MAV_LANDED_STATE_IN_AIR),
+        2500,
+    );
+    k.landing();
+    assert_eq!((k.fsm(2600), k.airborne(2600)), ("hover", true));
+}
+
+#[test]
 fn the_stream_stops_when_the_last_session_that_set_it_leaves() {
     let mut k = flying();
     k.stream(POSE, SessionId(2));
