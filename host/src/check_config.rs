@@ -74,6 +74,9 @@ pub fn check(settings: &Settings) -> Result<(), CheckError> {
             other?;
         }
     }
+    if let Some(uplink) = settings.uplink.as_ref().filter(|u| u.broker.tls) {
+        crate::client::tls_config(uplink.cafile.as_deref()).map_err(DaemonError::Uplink)?;
+    }
     if let Some(files) = &settings.tls {
         crate::net::tls::acceptor(&files.cert, &files.key, std::time::SystemTime::now())
             .map_err(DaemonError::from)?;
@@ -150,6 +153,12 @@ pub fn effective(s: &Settings) -> FileConfig {
         console: Some(s.console),
         admin_password: Some(s.admin_password.clone()),
         logout_password: Some(s.logout_password.clone()),
+        uplink: s.uplink.as_ref().map(|u| u.broker.to_string()),
+        uplink_user: s.uplink.as_ref().and_then(|u| u.user.clone()),
+        uplink_password: s.uplink.as_ref().and_then(|u| u.password.clone()),
+        uplink_cafile: s.uplink.as_ref().and_then(|u| u.cafile.clone()),
+        vehicle_id: s.uplink.as_ref().map(|u| u.vehicle_id.clone()),
+        uplink_state_hz: s.uplink.as_ref().map(|u| u.state_hz),
     }
 }
 

@@ -21,7 +21,7 @@
 //! # Ok(()) }
 //! ```
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::pin::Pin;
 use std::sync::Arc;
 use std::task::{Context, Poll};
@@ -215,11 +215,19 @@ impl AsyncWrite for Transport {
 /// The TLS client settings for `options`: its CA file, else the system's
 /// root certificates.
 fn tls_connector(options: &ConnectOptions) -> Result<TlsConnector, ClientError> {
+    let config = tls_config(options.ca_file.as_deref())?;
+    Ok(TlsConnector::from(Arc::new(config)))
+}
+
+/// rustls client settings that trust the certificates in `ca_file` (PEM),
+/// or the system's root certificates without one. The MQTT uplink and the
+/// fleet client use them too.
+pub fn tls_config(ca_file: Option<&Path>) -> Result<rustls::ClientConfig, ClientError> {
     let mut roots = rustls::RootCertStore::empty();
-    match &options.ca_file {
+    match ca_file {
         Some(path) => {
             let bad = |why: String| ClientError::CaFile {
-                path: path.clone(),
+                path: path.to_owned(),
                 why,
             };
             let certs = CertificateDer::pem_file_iter(path)
@@ -238,12 +246,13 @@ fn tls_connector(options: &ConnectOptions) -> Result<TlsConnector, ClientError> 
             let _ = roots.add_parsable_certificates(rustls_native_certs::load_native_certs().certs);
         }
     }
-    let config = rustls::ClientConfig::builder_with_provider(crate::net::tls::provider())
-        .with_safe_default_protocol_versions()
-        .map_err(|e| ClientError::Tls(e.to_string()))?
-        .with_root_certificates(roots)
-        .with_no_client_auth();
-    Ok(TlsConnector::from(Arc::new(config)))
+    Ok(
+        rustls::ClientConfig::builder_with_provider(crate::net::tls::provider())
+            .with_safe_default_protocol_versions()
+            .map_err(|e| ClientError::Tls(e.to_string()))?
+            .with_root_certificates(roots)
+            .with_no_client_auth(),
+    )
 }
 
 /// Opens a WebSocket to `url` (`ws://` or `wss://`); the building block of

@@ -123,6 +123,9 @@ pub struct Cli {
     /// what is wrong.
     #[arg(long)]
     pub check_config: bool,
+    /// The MQTT uplink.
+    #[command(flatten)]
+    pub uplink: crate::uplink::UplinkCli,
 }
 
 /// The config file: every field optional, unknown fields refused.
@@ -184,6 +187,18 @@ pub struct FileConfig {
     pub admin_password: Option<String>,
     /// The login value that logs out (protocol default `0315`).
     pub logout_password: Option<String>,
+    /// As `--uplink`.
+    pub uplink: Option<String>,
+    /// As `--uplink-user`.
+    pub uplink_user: Option<String>,
+    /// As `--uplink-password`.
+    pub uplink_password: Option<String>,
+    /// As `--uplink-cafile`.
+    pub uplink_cafile: Option<PathBuf>,
+    /// As `--vehicle-id`.
+    pub vehicle_id: Option<String>,
+    /// As `--uplink-state-hz`.
+    pub uplink_state_hz: Option<f64>,
 }
 
 /// `mavlink_system` in the config file: `1` or `"any"`.
@@ -299,6 +314,8 @@ pub struct Settings {
     pub console: bool,
     /// Serve the echo handler instead of the protocol.
     pub echo: bool,
+    /// The MQTT uplink, if configured.
+    pub uplink: Option<crate::uplink::Settings>,
 }
 
 impl Settings {
@@ -312,8 +329,11 @@ impl Settings {
     }
 
     /// Settings from the command line over `file`.
-    pub fn merge(cli: Cli, file: FileConfig) -> Result<Self, ConfigError> {
+    pub fn merge(mut cli: Cli, mut file: FileConfig) -> Result<Self, ConfigError> {
         let limits = limits(&cli, &file)?;
+        let (login_lockout, login_rate, login_addresses) = login(&cli, &file)?;
+        let (mavlink, mavlink_system, mavlink_signing_key) = mavlink(&mut cli, &mut file)?;
+        let uplink = uplink(cli.uplink, &mut file)?;
         let data_dir = match cli.data_dir.or(file.data_dir) {
             Some(dir) => dir,
             None => directories::ProjectDirs::from("", "", "lluav")
@@ -325,56 +345,14 @@ impl Settings {
         if !(sim_speed.is_finite() && sim_speed > 0.0) {
             return Err(ConfigError::Invalid("--sim-speed must be a finite number > 0"));
         }
-        let origins = if cli.allow_origin.is_empty() {
-            file.allow_origin.unwrap_or_default()
-        } else {
-            cli.allow_origin
-        };
-        let hosts = if cli.allow_host.is_empty() {
-            file.allow_host.unwrap_or_default()
-        } else {
-            cli.allow_host
-        };
-        let policy = Policy::new(&origins, &hosts)?;
+        let origins = list(cli.allow_origin, file.allow_origin);
+        let policy = Policy::new(&origins, &list(cli.allow_host, file.allow_host))?;
         let tls = match (cli.tls_cert.or(file.tls_cert), cli.tls_key.or(file.tls_key)) {
             (Some(cert), Some(key)) => Some(TlsFiles { cert, key }),
             (None, None) => None,
             _ => return Err(ConfigError::Invalid("--tls-cert and --tls-key go together")),
         };
-        let login_lockout = cli
-            .login_lockout
-            .or(file.login_lockout)
-            .map_or(DEFAULT_LOGIN_LOCKOUT, Duration::from_secs);
-        if login_lockout.is_zero() {
-            return Err(ConfigError::Invalid("--login-lockout must be > 0"));
-        }
-        let login_rate = cli.login_rate.or(file.login_rate).unwrap_or(DEFAULT_LOGIN_RATE);
-        if !(1..=1000).contains(&login_rate) {
-            return Err(ConfigError::Invalid("--login-rate must be 1 to 1000"));
-        }
-        let login_addresses = cli
-            .login_addresses
-            .or(file.login_addresses)
-            .unwrap_or(DEFAULT_LOGIN_ADDRESSES);
-        if !(1..=MAX_LOGIN_ADDRESSES).contains(&login_addresses) {
-            return Err(ConfigError::Invalid("--login-addresses must be 1 to 1048576"));
-        }
-        let mavlink = cli.mavlink.or(file.mavlink);
-        if let Some(address) = &mavlink
-            && ::mavlink::ConnectionAddress::parse_address(address).is_err()
-        {
-            return Err(ConfigError::Invalid(
-                "--mavlink must be udpin:HOST:PORT, udpout:HOST:PORT, tcpout:HOST:PORT or serial:DEVICE:BAUD",
-            ));
-        }
-        let (mavlink_system, mavlink_signing_key) = mavlink_link(
-            cli.mavlink_system,
-            file.mavlink_system,
-            cli.mavlink_signing_key.or(file.mavlink_signing_key),
-        )?;
         Ok(Settings {
-            mavlink_system,
-            mavlink_signing_key,
             bind: cli.bind.or(file.bind).unwrap_or(DEFAULT_BIND),
             password: cli.password.or(file.password),
             data_dir,
@@ -396,27 +374,91 @@ impl Settings {
             console: !cli.no_console && file.console.unwrap_or(true),
             echo: cli.echo,
             mavlink,
+            mavlink_system,
+            mavlink_signing_key,
+            uplink,
         })
     }
 }
 
-/// The autopilot followed and the signing key: flags over the file.
-fn mavlink_link(
-    flag: Option<Wanted>,
-    file: Option<SystemValue>,
-    key: Option<PathBuf>,
-) -> Result<(Wanted, Option<KeyFile>), ConfigError> {
-    let wanted = match (flag, file) {
+/// The radio link, flags over the file (taken from both): the autopilot's
+/// address, the autopilot followed and the signing key.
+fn mavlink(
+    cli: &mut Cli,
+    file: &mut FileConfig,
+) -> Result<(Option<String>, Wanted, Option<KeyFile>), ConfigError> {
+    let address = cli.mavlink.take().or(file.mavlink.take());
+    if let Some(address) = &address
+        && ::mavlink::ConnectionAddress::parse_address(address).is_err()
+    {
+        return Err(ConfigError::Invalid(
+            "--mavlink must be udpin:HOST:PORT, udpout:HOST:PORT, tcpout:HOST:PORT or serial:DEVICE:BAUD",
+        ));
+    }
+    let wanted = match (cli.mavlink_system, file.mavlink_system.take()) {
         (Some(w), _) => w,
         (None, Some(SystemValue::Id(n))) => n.to_string().parse().map_err(ConfigError::Mavlink)?,
         (None, Some(SystemValue::Name(s))) => s.parse().map_err(ConfigError::Mavlink)?,
         (None, None) => Wanted::default(),
     };
-    let key = key
+    let key = cli
+        .mavlink_signing_key
+        .take()
+        .or(file.mavlink_signing_key.take())
         .map(|path| SigningKey::read(&path).map(|key| KeyFile { path, key }))
         .transpose()
         .map_err(ConfigError::Mavlink)?;
-    Ok((wanted, key))
+    Ok((address, wanted, key))
+}
+
+/// The login throttle (lockout, attempts per minute, addresses tracked):
+/// flags over the file over the defaults.
+fn login(cli: &Cli, file: &FileConfig) -> Result<(Duration, u16, usize), ConfigError> {
+    let login_lockout = cli
+        .login_lockout
+        .or(file.login_lockout)
+        .map_or(DEFAULT_LOGIN_LOCKOUT, Duration::from_secs);
+    if login_lockout.is_zero() {
+        return Err(ConfigError::Invalid("--login-lockout must be > 0"));
+    }
+    let login_rate = cli.login_rate.or(file.login_rate).unwrap_or(DEFAULT_LOGIN_RATE);
+    if !(1..=1000).contains(&login_rate) {
+        return Err(ConfigError::Invalid("--login-rate must be 1 to 1000"));
+    }
+    let login_addresses = cli
+        .login_addresses
+        .or(file.login_addresses)
+        .unwrap_or(DEFAULT_LOGIN_ADDRESSES);
+    if !(1..=MAX_LOGIN_ADDRESSES).contains(&login_addresses) {
+        return Err(ConfigError::Invalid("--login-addresses must be 1 to 1048576"));
+    }
+    Ok((login_lockout, login_rate, login_addresses))
+}
+
+/// A list setting: the command line's, when it gives any, replaces the
+/// config file's.
+fn list(flag: Vec<String>, key: Option<Vec<String>>) -> Vec<String> {
+    if flag.is_empty() {
+        key.unwrap_or_default()
+    } else {
+        flag
+    }
+}
+
+/// The MQTT uplink: its flags over its keys (taken from `file`).
+fn uplink(
+    cli: crate::uplink::UplinkCli,
+    file: &mut FileConfig,
+) -> Result<Option<crate::uplink::Settings>, ConfigError> {
+    let keys = crate::uplink::UplinkKeys {
+        uplink: file.uplink.take(),
+        uplink_user: file.uplink_user.take(),
+        uplink_password: file.uplink_password.take(),
+        uplink_cafile: file.uplink_cafile.take(),
+        vehicle_id: file.vehicle_id.take(),
+        uplink_state_hz: file.uplink_state_hz.take(),
+    };
+    crate::uplink::Settings::resolve(cli, keys).map_err(ConfigError::Invalid)
 }
 
 /// The connection limits: flags over the file over the defaults.

@@ -14,20 +14,22 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use lluav_core::throttle::{DEFAULT_MAX_LOCKOUT_MS, Slot, Throttle};
-use lluav_core::{Auth, AuthError, Clock, Failure, Message, Outcome, Server, Session};
+use lluav_core::{Auth, AuthError, Clock, Failure, Message, Outcome, Peer, Server, Session};
 use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
+use tokio::sync::watch;
 use tracing::{error, info, warn};
 
-use crate::companion::{self, Companion, CompanionConfig};
+use crate::companion::{self, Companion, CompanionConfig, UplinkReport};
 use crate::config::{Settings, TlsFiles};
 use crate::console;
 use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
 use crate::net::{self, Echo, Handler};
-use crate::notify::{self, Counted, Link, Notifier, Status};
+use crate::notify::{self, Counted, Notifier, Status};
 use crate::onboard::Onboard;
 use crate::recent_log::RecentLog;
 use crate::sim::{SimConfig, Simulator};
+use crate::uplink::{self, StatusCell, Uplink};
 use crate::vehicle::{Vehicle, Wait};
 
 /// How often the vehicle is advanced.
@@ -155,6 +157,43 @@ impl<V: Vehicle> Handler for Protocol<V> {
     }
 }
 
+impl<V: Vehicle> uplink::Sessions for Protocol<V> {
+    fn open(&self, client: uplink::ClientKey) -> Session {
+        self.locked(|server| server.open(Some(Peer::Client(client.0))))
+    }
+
+    fn handle<'o>(
+        &'o self,
+        session: &'o mut Session,
+        frame: &'o str,
+        out: &'o mut [u8],
+    ) -> impl Future<Output = Outcome<'o>> + Send + 'o {
+        Handler::handle(self, session, Message::Text(frame.as_bytes()), out)
+    }
+
+    fn close(&self, session: Session) {
+        Handler::closed(self, session);
+    }
+
+    fn state(&self, out: &mut [u8]) -> Option<String> {
+        self.locked(|server| {
+            // The state topic is for whoever the broker lets read it: the
+            // uplink asks in a session of its own, logged in with the
+            // vehicle's password (never a wrong one: nothing is throttled).
+            let mut session = server.open(None);
+            if let Some(password) = server.auth().password().map(str::to_owned) {
+                server.auth_mut().login(&mut session, &password, 0);
+            }
+            let reply = server
+                .handle(&mut session, Message::Text(b"state"), out)
+                .reply()
+                .map(str::to_owned);
+            server.close(&session);
+            reply
+        })
+    }
+}
+
 /// The wait of the command `outcome` left pending, if it did.
 fn take_wait<V: Vehicle>(server: &mut OnboardServer<V>, outcome: &Outcome<'_>) -> Option<Wait> {
     match outcome {
@@ -206,6 +245,9 @@ pub enum DaemonError {
     /// Persisting state at shutdown failed.
     #[error("cannot persist the vehicle's state at shutdown: {0}")]
     Flush(std::io::Error),
+    /// The uplink's CA file cannot be used.
+    #[error("cannot use the uplink: {0}")]
+    Uplink(crate::client::ClientError),
     /// The autopilot's MAVLink link could not be opened.
     #[error("cannot open the MAVLink link {address}: {source}")]
     Mavlink {
@@ -227,6 +269,7 @@ pub struct Daemon<V> {
     net: net::Config,
     mode: Mode<V>,
     notifier: Option<Notifier>,
+    uplink: Option<Uplink>,
 }
 
 /// `lluavd`'s default backend: the companion computer and the simulated
@@ -248,6 +291,7 @@ impl Daemon<Simulator> {
     /// Opens the companion computer and the simulated vehicle (unless
     /// `settings.echo`), decides the password and binds the listener.
     pub async fn open(settings: &Settings, log: RecentLog) -> Result<Self, DaemonError> {
+        let status = StatusCell::new(settings.uplink.is_some());
         let onboard = if settings.echo {
             None
         } else {
@@ -255,6 +299,7 @@ impl Daemon<Simulator> {
                 data_dir: settings.data_dir.clone(),
                 log,
                 password_pinned: settings.password.is_some(),
+                uplink: Some(report(&status)),
             };
             let onboard = simulated(companion, settings.sim_speed).map_err(|source| DaemonError::Open {
                 dir: settings.data_dir.clone(),
@@ -262,7 +307,9 @@ impl Daemon<Simulator> {
             })?;
             Some(onboard)
         };
-        Daemon::with_vehicle(settings, onboard).await
+        Daemon::with_vehicle(settings, onboard)
+            .await?
+            .uplinked(settings, status)
     }
 }
 
@@ -274,10 +321,12 @@ impl Daemon<MavlinkVehicle> {
         log: RecentLog,
         address: &str,
     ) -> Result<Self, DaemonError> {
+        let status = StatusCell::new(settings.uplink.is_some());
         let companion = Companion::open(CompanionConfig {
             data_dir: settings.data_dir.clone(),
             log,
             password_pinned: settings.password.is_some(),
+            uplink: Some(report(&status)),
         })
         .map_err(|source| DaemonError::Open {
             dir: settings.data_dir.clone(),
@@ -295,7 +344,9 @@ impl Daemon<MavlinkVehicle> {
                     address: address.to_owned(),
                     source,
                 })?;
-        Daemon::with_vehicle(settings, Some(Onboard::new(companion, vehicle))).await
+        Daemon::with_vehicle(settings, Some(Onboard::new(companion, vehicle)))
+            .await?
+            .uplinked(settings, status)
     }
 }
 
@@ -331,7 +382,26 @@ impl<V: Vehicle> Daemon<V> {
             net,
             mode,
             notifier: None,
+            uplink: None,
         })
+    }
+
+    /// Adds the uplink of `settings` (not in echo mode), reporting its
+    /// state in `status`.
+    pub fn uplinked(mut self, settings: &Settings, status: StatusCell) -> Result<Self, DaemonError> {
+        let Some(uplink) = settings.uplink.clone().filter(|_| !settings.echo) else {
+            return Ok(self);
+        };
+        let limits = uplink::Limits {
+            max_message: settings.limits.max_message,
+            response_capacity: settings.limits.response_capacity,
+            table: uplink::table::Limits {
+                idle_ms: u64::try_from(settings.limits.idle_timeout.as_millis()).unwrap_or(u64::MAX),
+                ..uplink::table::Limits::default()
+            },
+        };
+        self.uplink = Some(Uplink::new(uplink, limits, status).map_err(DaemonError::Uplink)?);
+        Ok(self)
     }
 
     /// The address actually bound (the port, when 0 was asked for).
@@ -366,15 +436,31 @@ impl<V: Vehicle> Daemon<V> {
         let handler = Arc::new(Counted::new(Protocol::new(Arc::clone(&server))));
         let sessions = handler.counter();
         let vehicle = Arc::clone(&server);
-        // The uplink's broker state goes into `uplink` once lluavd has one.
+        let uplink_status = self.uplink.as_ref().map(|u| u.status().clone());
         let keep_alive = self.notifier.map(|notifier| {
             tokio::spawn(notify::keep_alive(notifier, move || Status {
                 sessions: sessions.load(Ordering::Relaxed),
                 autopilot: lock(&vehicle).backend().link_up(SystemClock.unix_ms()).into(),
-                uplink: Link::None,
+                uplink: uplink_status
+                    .as_ref()
+                    .map(|s| s.get() == uplink::Status::Up)
+                    .into(),
             }))
         });
+        let (stop, stopped) = watch::channel(false);
+        let uplink = self.uplink.map(|u| {
+            // Sessions of its own, not counted among the connections.
+            let protocol = Arc::new(Protocol::new(Arc::clone(&server)));
+            tokio::spawn(u.run(protocol, stopped))
+        });
+        let shutdown = async move {
+            shutdown.await;
+            let _ = stop.send(true);
+        };
         net::serve(self.listener, handler, self.net, shutdown).await;
+        if let Some(uplink) = uplink {
+            let _ = uplink.await;
+        }
         ticker.abort();
         if let Some(task) = keep_alive {
             task.abort();
@@ -449,6 +535,12 @@ fn tls_acceptor(settings: &Settings, files: &TlsFiles) -> Result<tokio_rustls::T
         );
     }
     Ok(served.acceptor)
+}
+
+/// `state.uplink` read from `status`.
+fn report(status: &StatusCell) -> UplinkReport {
+    let status = status.clone();
+    UplinkReport::new(move || status.get().as_str())
 }
 
 /// Advances the vehicle every [`TICK`] by the wall time that really passed.
@@ -532,6 +624,7 @@ mod tests {
             data_dir: dir.path().to_path_buf(),
             log: RecentLog::new(8),
             password_pinned: false,
+            uplink: None,
         })
         .unwrap();
         let (release, released) = oneshot::channel();

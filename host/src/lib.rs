@@ -18,7 +18,9 @@
 //! - [`recent_log`]: the log `showmsg` shows;
 //! - [`notify`], [`journal`], [`check_config`]: running as a systemd
 //!   service (readiness, watchdog and status; log lines for the journal;
-//!   `--check-config`).
+//!   `--check-config`);
+//! - [`uplink`]: the protocol through an MQTT broker (vehicles behind NAT,
+//!   fleets), and the operator's side of it.
 
 #![warn(missing_docs)]
 
@@ -36,4 +38,5 @@ pub mod notify;
 pub mod onboard;
 pub mod recent_log;
 pub mod sim;
+pub mod uplink;
 pub mod vehicle;

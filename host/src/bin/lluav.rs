@@ -5,13 +5,20 @@
 //! 0, 1 when the command failed or the server could not be reached, 2 when
 //! the command line is not a valid request. Without a command it starts an
 //! interactive session with history and completion of command names.
+//!
+//! Through an MQTT broker (lluavd's uplink): `lluav --broker URL fleet
+//! [--json]` lists the vehicles; `lluav --broker URL --vehicle V[,V2...]
+//! COMMAND` runs a command on each (one line per vehicle when several);
+//! `lluav --broker URL --vehicle V` is the interactive session with V.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Duration;
 
 use clap::Parser;
 use lluav_core::{Grammar, TABLE};
 use lluav_host::client::{Client, ClientError, ConnectOptions, DEFAULT_URL, Response};
+use lluav_host::uplink::fleet::{self, Fleet, FleetError, FleetOptions};
 use rustyline::completion::{Completer, Pair};
 use rustyline::error::ReadlineError;
 use rustyline::highlight::Highlighter;
@@ -35,6 +42,33 @@ struct Cli {
     /// Log in with this password first.
     #[arg(long, env = "LLUAV_PASSWORD", hide_env_values = true, value_name = "P")]
     password: Option<String>,
+    /// Reach vehicles through this MQTT broker (lluavd --uplink) instead:
+    /// mqtt://HOST or mqtt://HOST:PORT (1883), mqtts://... for TLS (8883).
+    #[arg(long, value_name = "URL", conflicts_with = "url")]
+    broker: Option<String>,
+    /// With --broker: the vehicle(s) to command, comma-separated.
+    #[arg(long, value_name = "V[,V2...]", value_delimiter = ',', requires = "broker")]
+    vehicle: Vec<String>,
+    /// With --broker: the user name at the broker.
+    #[arg(long, value_name = "USER", requires = "broker")]
+    broker_user: Option<String>,
+    /// With --broker: the password at the broker.
+    #[arg(long, env = "LLUAV_BROKER_PASSWORD", hide_env_values = true, value_name = "P")]
+    broker_password: Option<String>,
+    /// With an mqtts:// broker: a PEM file of the certificates to trust
+    /// instead of the system's.
+    #[arg(long, env = "LLUAV_BROKER_CAFILE", value_name = "FILE")]
+    broker_cafile: Option<PathBuf>,
+    /// With --broker: this operator's client id (1-64 of [A-Za-z0-9_-]);
+    /// each client id is one session on each vehicle. [default: lluav-USER-RANDOM]
+    #[arg(long, value_name = "ID", requires = "broker")]
+    client_id: Option<String>,
+    /// With --broker: seconds to wait for each vehicle's answer.
+    #[arg(long, value_name = "SECS", default_value_t = 5.0, requires = "broker")]
+    timeout: f64,
+    /// With `--broker URL fleet`: print the fleet as JSON.
+    #[arg(long, requires = "broker")]
+    json: bool,
     /// The command and its arguments, e.g. `state` or `set_sp_ned 1:2:-3:0`;
     /// none starts the interactive session.
     #[arg(trailing_var_arg = true, allow_hyphen_values = true, value_name = "COMMAND")]
@@ -50,10 +84,133 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
+    if cli.broker.is_some() {
+        return through_broker(&runtime, cli);
+    }
     if cli.command.is_empty() {
         repl(&runtime, &cli)
     } else {
         one_shot(&runtime, &cli, &cli.command.join(" "))
+    }
+}
+
+/// `--broker`: the fleet listing, a command on each vehicle, or the
+/// interactive session with one.
+fn through_broker(runtime: &Runtime, mut cli: Cli) -> ExitCode {
+    // `fleet --json` as well as `--json fleet`.
+    if cli.command.first().is_some_and(|c| c == "fleet") && cli.command.iter().skip(1).all(|a| a == "--json")
+    {
+        cli.json |= cli.command.len() > 1;
+        return runtime.block_on(list_fleet(&cli));
+    }
+    let line = cli.command.join(" ");
+    let lines = !line.is_empty();
+    match (cli.vehicle.as_slice(), lines) {
+        ([], _) => {
+            eprintln!(
+                "lluav: with --broker, name the vehicle(s) with --vehicle V[,V2...], or list them: lluav --broker URL fleet"
+            );
+            ExitCode::from(2)
+        }
+        ([_, _, ..], false) => {
+            eprintln!("lluav: the interactive session talks to one vehicle: --vehicle V");
+            ExitCode::from(2)
+        }
+        (_, true) => match lluav_core::parse(&line) {
+            Ok(_) => runtime.block_on(on_vehicles(&cli, &line)),
+            Err(e) => {
+                eprintln!("lluav: {e}");
+                ExitCode::from(2)
+            }
+        },
+        ([_], false) => repl(runtime, &cli),
+    }
+}
+
+/// Connects to the broker of `--broker`.
+async fn fleet(cli: &Cli) -> Result<Fleet, FleetError> {
+    let options = FleetOptions {
+        client_id: cli.client_id.clone(),
+        user: cli.broker_user.clone(),
+        password: cli.broker_password.clone(),
+        cafile: cli.broker_cafile.clone(),
+    };
+    Fleet::connect(cli.broker.as_deref().unwrap_or_default(), &options).await
+}
+
+fn wait(cli: &Cli) -> Duration {
+    Duration::try_from_secs_f64(cli.timeout).unwrap_or(Duration::from_secs(5))
+}
+
+/// `lluav --broker URL fleet [--json]`.
+async fn list_fleet(cli: &Cli) -> ExitCode {
+    let fleet = match fleet(cli).await {
+        Ok(f) => f,
+        Err(e) => {
+            eprintln!("lluav: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let vehicles = fleet.vehicles().await;
+    if cli.json {
+        let object: serde_json::Map<String, serde_json::Value> =
+            vehicles.iter().map(|v| (v.id.clone(), v.to_json())).collect();
+        println!("{}", serde_json::Value::Object(object));
+    } else {
+        print!("{}", fleet::table(&vehicles));
+    }
+    fleet.close().await;
+    ExitCode::SUCCESS
+}
+
+/// Logs in to `vehicle` when a password is given, then sends `line`.
+async fn on_vehicle(fleet: &Fleet, cli: &Cli, vehicle: &str, line: &str) -> Result<Response, FleetError> {
+    if let Some(password) = &cli.password {
+        let login = frame(&format!("login {password}")).unwrap_or_default();
+        let response = fleet.request(vehicle, &login, wait(cli)).await?;
+        if response.ret < 0 {
+            return Ok(response);
+        }
+    }
+    fleet
+        .request(vehicle, &frame(line).unwrap_or_default(), wait(cli))
+        .await
+}
+
+/// `lluav --broker URL --vehicle V[,V2...] COMMAND`: all at once, one
+/// line per vehicle (pretty JSON for one).
+async fn on_vehicles(cli: &Cli, line: &str) -> ExitCode {
+    let fleet = match fleet(cli).await {
+        Ok(f) => f,
+        Err(e) => {
+            eprintln!("lluav: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let answers =
+        futures_util::future::join_all(cli.vehicle.iter().map(|v| on_vehicle(&fleet, cli, v, line))).await;
+    let mut failed = false;
+    for (vehicle, answer) in cli.vehicle.iter().zip(answers) {
+        match answer {
+            Ok(response) if cli.vehicle.len() == 1 => {
+                print_response(&response);
+                failed |= response.ret < 0;
+            }
+            Ok(response) => {
+                println!("{vehicle}: {}", response.to_json());
+                failed |= response.ret < 0;
+            }
+            Err(e) => {
+                eprintln!("{vehicle}: lluav: {e}");
+                failed = true;
+            }
+        }
+    }
+    fleet.close().await;
+    if failed {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
     }
 }
 
@@ -148,22 +305,101 @@ fn editor(history: Option<&PathBuf>) -> rustyline::Result<Editor<Commands, Defau
     Ok(editor)
 }
 
+/// What the interactive session talks to: a server over WebSocket, or a
+/// vehicle through a broker.
+enum Link {
+    Ws(Box<Client>),
+    Broker(Fleet, String),
+}
+
+/// Why a line got no answer.
+enum Failed {
+    /// The line is not a request: nothing was sent.
+    Parse(String),
+    /// The link is broken: the next line reconnects.
+    Link(String),
+    /// The vehicle did not answer; the link is fine.
+    Vehicle(String),
+}
+
+impl Link {
+    /// Connects as the command line says (and logs in with `--password`).
+    async fn open(cli: &Cli) -> Result<Link, String> {
+        match (&cli.broker, cli.vehicle.first()) {
+            (Some(_), Some(vehicle)) => {
+                let fleet = fleet(cli).await.map_err(|e| e.to_string())?;
+                if let Some(password) = &cli.password {
+                    let login = frame(&format!("login {password}")).map_err(|e| e.to_string())?;
+                    let response = fleet.request(vehicle, &login, wait(cli)).await;
+                    response
+                        .map_err(|e| e.to_string())?
+                        .check()
+                        .map_err(|e| e.to_string())?;
+                }
+                Ok(Link::Broker(fleet, vehicle.clone()))
+            }
+            _ => connect(cli)
+                .await
+                .map(|c| Link::Ws(Box::new(c)))
+                .map_err(|e| e.to_string()),
+        }
+    }
+
+    async fn send(&mut self, cli: &Cli, line: &str) -> Result<Response, Failed> {
+        match self {
+            Link::Ws(client) => client.send_line(line).await.map_err(|e| match e {
+                ClientError::Parse(_) => Failed::Parse(e.to_string()),
+                e => Failed::Link(e.to_string()),
+            }),
+            Link::Broker(fleet, vehicle) => {
+                let frame = frame(line).map_err(Failed::Parse)?;
+                fleet
+                    .request(vehicle, &frame, wait(cli))
+                    .await
+                    .map_err(|e| match e {
+                        FleetError::Lost(_) => Failed::Link(e.to_string()),
+                        e => Failed::Vehicle(e.to_string()),
+                    })
+            }
+        }
+    }
+
+    async fn close(self) {
+        match self {
+            Link::Ws(client) => {
+                let _ = client.close().await;
+            }
+            Link::Broker(fleet, _) => fleet.close().await,
+        }
+    }
+}
+
+/// The canonical frame of `line`, or why it is not a request.
+fn frame(line: &str) -> Result<String, String> {
+    let command = lluav_core::parse(line).map_err(|e| e.to_string())?;
+    let mut frame = String::new();
+    // Writing into a String cannot fail.
+    let _ = command.encode(&mut frame);
+    Ok(frame)
+}
+
 /// Sends one line of the interactive session and prints the answer;
 /// drops the connection after a transport error (the next line reconnects).
-fn send_line(runtime: &Runtime, cli: &Cli, client: &mut Option<Client>, line: &str) {
+fn send_line(runtime: &Runtime, cli: &Cli, link: &mut Option<Link>, line: &str) {
     let reply = runtime.block_on(async {
-        let c = match client {
-            Some(c) => c,
-            None => client.insert(connect(cli).await?),
+        let l = match link {
+            Some(l) => l,
+            None => link.insert(Link::open(cli).await.map_err(Failed::Link)?),
         };
-        c.send_line(line).await
+        l.send(cli, line).await
     });
     match reply {
         Ok(response) => print_response(&response),
-        Err(e @ ClientError::Parse(_)) => eprintln!("{e}"),
-        Err(e) => {
+        Err(Failed::Parse(e)) => eprintln!("{e}"),
+        Err(Failed::Vehicle(e)) => eprintln!("lluav: {e}"),
+        Err(Failed::Link(e)) => {
             eprintln!("lluav: {e}; the next command reconnects");
-            *client = None;
+            *link = None;
         }
     }
 }
@@ -177,16 +413,19 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let mut client = match runtime.block_on(connect(cli)) {
-        Ok(c) => Some(c),
+    let mut link = match runtime.block_on(Link::open(cli)) {
+        Ok(l) => Some(l),
         Err(e) => {
             eprintln!("lluav: {e}");
             return ExitCode::FAILURE;
         }
     };
+    let peer = match (&cli.broker, cli.vehicle.first()) {
+        (Some(broker), Some(vehicle)) => format!("vehicle {vehicle} through {broker}"),
+        _ => cli.url.clone(),
+    };
     println!(
-        "connected to {}. `help` lists the commands, `help NAME` shows one; Tab completes; Ctrl-D quits.",
-        cli.url
+        "connected to {peer}. `help` lists the commands, `help NAME` shows one; Tab completes; Ctrl-D quits."
     );
     loop {
         let line = match editor.readline("lluav> ") {
@@ -212,7 +451,7 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
             ("quit" | "exit", _) => break,
             ("help", "") => print_table(),
             ("help", name) => print_command(name),
-            _ => send_line(runtime, cli, &mut client, line),
+            _ => send_line(runtime, cli, &mut link, line),
         }
     }
     if let Some(path) = &history
@@ -220,8 +459,8 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
     {
         eprintln!("lluav: history not saved to {}: {e}", path.display());
     }
-    if let Some(c) = client {
-        let _ = runtime.block_on(c.close());
+    if let Some(l) = link {
+        runtime.block_on(l.close());
     }
     ExitCode::SUCCESS
 }

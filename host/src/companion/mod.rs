@@ -25,6 +25,7 @@ mod system;
 
 use std::io;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 use lluav_core::{Command, CommandId, Context, Fields, Section};
@@ -51,6 +52,26 @@ pub struct CompanionConfig {
     /// Whether the daemon's configuration (`--password`, `LLUAV_PASSWORD`,
     /// the config file) sets the password, so that `passwd` must refuse.
     pub password_pinned: bool,
+    /// Where `state.uplink` comes from; `None`: `off`.
+    pub uplink: Option<UplinkReport>,
+}
+
+/// The state of this machine's link to an MQTT broker, for `state.uplink`
+/// (`up`, `down`): read when `state` is answered.
+#[derive(Clone)]
+pub struct UplinkReport(Arc<dyn Fn() -> &'static str + Send + Sync>);
+
+impl UplinkReport {
+    /// A report that asks `read` each time.
+    pub fn new(read: impl Fn() -> &'static str + Send + Sync + 'static) -> Self {
+        UplinkReport(Arc::new(read))
+    }
+}
+
+impl std::fmt::Debug for UplinkReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "UplinkReport({})", (self.0)())
+    }
 }
 
 /// File in the data directory holding what [`Kept`] keeps.
@@ -76,6 +97,7 @@ pub struct Companion {
     kept: Saved<Kept>,
     bags: Bags,
     nodes: Nodes,
+    uplink: Option<UplinkReport>,
 }
 
 impl Companion {
@@ -92,6 +114,7 @@ impl Companion {
             kept,
             bags: Bags::default(),
             nodes: Nodes::default(),
+            uplink: cfg.uplink,
         })
     }
 
@@ -172,6 +195,7 @@ impl Companion {
     /// Writes this machine's members of `state`.
     pub fn write_state(&self, state: &mut Fields<'_>) {
         state.bool("recording_bag", self.bags.recording());
+        state.str("uplink", self.uplink.as_ref().map_or("off", |read| (read.0)()));
     }
 
     /// Moves time on by `dt` of wall time: the nodes' uptime grows and a

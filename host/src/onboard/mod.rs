@@ -276,6 +276,7 @@ mod tests {
             data_dir: dir.path().to_path_buf(),
             log: RecentLog::new(8),
             password_pinned: false,
+            uplink: None,
         })
         .unwrap();
         let mut server = Server::new(Onboard::new(companion, Faulty), || 7, Auth::new(None).unwrap());

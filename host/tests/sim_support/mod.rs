@@ -53,6 +53,7 @@ impl Harness {
             data_dir: dir.to_path_buf(),
             log: log.clone(),
             password_pinned: password.is_some(),
+            uplink: None,
         };
         let onboard = daemon::simulated(companion, speed).expect("backend opens");
         let password = password.map(str::to_owned).or_else(|| onboard.stored_password());
