@@ -6,22 +6,23 @@
 #   - the Python SDK (maturin wheel, pytest against the real lluavd);
 #   - the browser console (Node's test runner, headless Chromium + Selenium);
 #   - the MAVLink backend against real third-party peers (MAVSDK, pymavlink);
+#   - the MQTT uplink against a real broker (Mosquitto);
 #   - deploy: the Debian packages (amd64, arm64) and the systemd unit, the
 #     packaged binaries against the integration tests (arm64 under qemu).
 # lluavd is built once (debug, the binary `cargo test` already built) and
 # handed to every suite. Extra suites can be skipped by naming the ones to
-# run: `bash scripts/test.sh rust python` (default: all five).
+# run: `bash scripts/test.sh rust python` (default: all six).
 set -euo pipefail
 # shellcheck source=scripts/lib.sh
 . "$(dirname "$0")/lib.sh"
 trap steps_done EXIT
 suites=("$@")
-[ ${#suites[@]} -gt 0 ] || suites=(rust python console mavlink deploy)
+[ ${#suites[@]} -gt 0 ] || suites=(rust python console mavlink uplink deploy)
 for suite in "${suites[@]}"; do
     case $suite in
-        rust | python | console | mavlink | deploy) ;;
+        rust | python | console | mavlink | uplink | deploy) ;;
         *)
-            echo "unknown suite '$suite': rust, python, console, mavlink or deploy" >&2
+            echo "unknown suite '$suite': rust, python, console, mavlink, uplink or deploy" >&2
             exit 2
             ;;
     esac
@@ -47,6 +48,11 @@ for suite in "${suites[@]}"; do
             step "tests: the MAVLink backend against MAVSDK and pymavlink (scripts/test-mavlink.sh)"
             find_lluavd
             bash scripts/test-mavlink.sh
+            ;;
+        uplink)
+            step "tests: the MQTT uplink and lluav --broker against Mosquitto (scripts/test-uplink.sh)"
+            find_lluavd
+            bash scripts/test-uplink.sh
             ;;
         deploy)
             step "tests: the Debian packages and the systemd unit (scripts/test-deploy.sh; its own === steps)"

@@ -13,6 +13,8 @@
 //! own test CA ([`test_ca`], made with rcgen); [`Conn`] trusts that CA.
 //! [`over_ws_and_wss!`] runs a set of tests both ways.
 
+pub mod broker;
+
 use std::io::{BufRead, BufReader, Read};
 use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};

@@ -33,6 +33,8 @@ pub struct Dial<'a> {
     pub max_packet: (usize, usize),
     /// Requests the client may queue for the connection.
     pub queue: usize,
+    /// Acknowledge QoS 1 messages only when told to.
+    pub manual_acks: bool,
 }
 
 impl Dial<'_> {
@@ -45,7 +47,8 @@ impl Dial<'_> {
             // nothing this end queued is sent after a reconnect.
             .set_clean_session(true)
             .set_max_packet_size(self.max_packet.0, self.max_packet.1)
-            .set_request_channel_capacity(self.queue);
+            .set_request_channel_capacity(self.queue)
+            .set_manual_acks(self.manual_acks);
         if let Some(user) = self.user {
             options.set_credentials(user, self.password.unwrap_or_default());
         }

@@ -223,6 +223,7 @@ impl Fleet {
             cafile: options.cafile.as_deref(),
             max_packet: (1 << 20, 1 << 20),
             queue: 256,
+            manual_acks: false,
         };
         let (client, mut events) = AsyncClient::new(dial.options()?, 256);
         broker::tune(&mut events);

@@ -131,6 +131,7 @@ impl Uplink {
                 limits.response_capacity + 4096,
             ),
             queue: QUEUE,
+            manual_acks: true,
         };
         let mut options = dial.options()?;
         let will = serde_json::json!({"vehicle": topics.vehicle(), "online": false}).to_string();

@@ -152,11 +152,30 @@ impl<S: Sessions> Shared<S> {
         ClientKey(key)
     }
 
-    /// Takes one message off the broker connection; never waits.
+    /// Takes one message off the broker connection, then acknowledges it;
+    /// never waits.
     pub fn dispatch(self: &Arc<Self>, publish: &Publish) {
-        if self.stopping.load(Ordering::Relaxed) {
-            return;
+        if !self.stopping.load(Ordering::Relaxed) {
+            self.take(publish);
         }
+        self.acknowledge(publish);
+    }
+
+    /// Acknowledges a QoS 1 message once its request is queued or answered:
+    /// the broker sends a client's messages only a window ahead of these
+    /// acknowledgements, so a flood of requests is paced by the vehicle
+    /// (and queued, then dropped, at the broker), not piled up here.
+    fn acknowledge(&self, publish: &Publish) {
+        if self.client.try_ack(publish).is_err() {
+            // The connection's queue is full: wait for room elsewhere (at
+            // most the broker's window of these wait at once).
+            let client = self.client.clone();
+            let publish = publish.clone();
+            tokio::spawn(async move { client.ack(&publish).await });
+        }
+    }
+
+    fn take(self: &Arc<Self>, publish: &Publish) {
         let client = match self.topics.client_of(&publish.topic) {
             Ok(_) if publish.retain => Err(Stray::Retained),
             other => other,
