@@ -12,6 +12,8 @@ package cannot disagree with a server about a command.
 
 - :class:`Client` (synchronous) and :class:`AsyncClient` (asyncio): one
   method per command, named and typed after the table, plus ``call(frame)``.
+- :class:`Fleet` and :class:`AsyncFleet`: vehicles through an MQTT broker
+  (lluavd's uplink); ``fleet.vehicle(V)`` has the same methods.
 - :func:`parse`: a frame read exactly as the server reads it; :func:`encode`:
   the frame a method would send.
 - :data:`COMMANDS`: the command table, in id order.
@@ -28,6 +30,7 @@ from ._core import TABLE, Command, Param, Spec
 from ._core import encode as _encode
 from ._core import parse as _parse
 from ._errors import CommandError, ConnectionError, Error, InvalidArguments, UnknownCommand
+from ._fleet import AsyncFleet, AsyncFleetVehicle, Fleet, FleetVehicle
 from ._sync import DEFAULT_URL, Client
 
 COMMANDS: tuple[Spec, ...] = TABLE
@@ -65,11 +68,15 @@ __all__ = [
     "COMMANDS",
     "DEFAULT_URL",
     "AsyncClient",
+    "AsyncFleet",
+    "AsyncFleetVehicle",
     "Client",
     "Command",
     "CommandError",
     "ConnectionError",
     "Error",
+    "Fleet",
+    "FleetVehicle",
     "InvalidArguments",
     "Param",
     "Spec",

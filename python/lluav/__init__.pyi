@@ -14,6 +14,8 @@ package cannot disagree with a server about a command.
 
 - :class:`Client` (synchronous) and :class:`AsyncClient` (asyncio): one
   method per command, named and typed after the table, plus ``call(frame)``.
+- :class:`Fleet` and :class:`AsyncFleet`: vehicles through an MQTT broker
+  (lluavd's uplink); ``fleet.vehicle(V)`` has the same methods.
 - :func:`parse`: a frame read exactly as the server reads it; :func:`encode`:
   the frame a method would send.
 - :data:`COMMANDS`: the command table, in id order.
@@ -28,7 +30,7 @@ from ._core import Command as Command
 from ._core import Param as Param
 from ._core import Spec as Spec
 
-__all__ = ['AsyncClient', 'COMMANDS', 'Client', 'Command', 'CommandError', 'ConnectionError', 'DEFAULT_URL', 'Error', 'InvalidArguments', 'Param', 'Spec', 'UnknownCommand', 'encode', 'parse']
+__all__ = ['AsyncClient', 'AsyncFleet', 'AsyncFleetVehicle', 'COMMANDS', 'Client', 'Command', 'CommandError', 'ConnectionError', 'DEFAULT_URL', 'Error', 'Fleet', 'FleetVehicle', 'InvalidArguments', 'Param', 'Spec', 'UnknownCommand', 'encode', 'parse']
 
 DEFAULT_URL: Final[str]
 COMMANDS: Final[tuple[Spec, ...]]
@@ -1807,3 +1809,1767 @@ class AsyncClient:
         Returns the whole response object (``ret`` 0). Raises InvalidArguments
         before sending when the arguments do not fit, CommandError when ``ret``
         is not 0, ConnectionError when the connection fails."""
+
+class FleetVehicle:
+    """One vehicle reached through a :class:`Fleet`: every command is a
+    method, exactly as on :class:`lluav.Client` (``v.state()``,
+    ``v.set_sp_ned(1.0, 2.0, -3.0, 0.5)``), with the same argument checks
+    and errors; ``call`` sends any frame. A response that does not come
+    within the fleet's ``timeout`` raises ConnectionError (``vehicle V is
+    offline``, or did not answer); the connection stays usable."""
+    fleet: Fleet
+    vehicle: str
+    def __init__(self, fleet: Fleet, vehicle: str) -> None: ...
+    def call(self, frame: str) -> dict[str, Any]:
+        """Sends any frame (``"set_sp_ned 1:2:-3:0"``) as it is and returns
+        the response; the vehicle, not the SDK, decides whether it is valid."""
+    def login(self, password: str) -> dict[str, Any]:
+        """Log this session in (1025: admin, 0315: log out).
+
+        Sends ``login <password>`` (command id 1).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def state(self) -> dict[str, Any]:
+        """Full FSM state.
+
+        Sends ``state`` (command id 2).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def param(self) -> dict[str, Any]:
+        """All parameters.
+
+        Sends ``param`` (command id 3).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def get_param(self, name: str) -> dict[str, Any]:
+        """One parameter.
+
+        Sends ``get_param name`` (command id 4).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def ver(self) -> dict[str, Any]:
+        """Version information.
+
+        Sends ``ver`` (command id 5).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def sysinfo(self) -> dict[str, Any]:
+        """Uptime, RAM and loads.
+
+        Sends ``sysinfo`` (command id 6).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def diskusage(self) -> dict[str, Any]:
+        """Free disk space.
+
+        Sends ``diskusage`` (command id 7).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def statics(self) -> dict[str, Any]:
+        """Communication and recording statistics.
+
+        Sends ``statics`` (command id 8).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def machineid(self) -> dict[str, Any]:
+        """Unique hardware id.
+
+        Sends ``machineid`` (command id 9).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def hud1(self) -> dict[str, Any]:
+        """Keyframes, ENU position and extras.
+
+        Sends ``hud1`` (command id 10).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def lidarpose(self) -> dict[str, Any]:
+        """Lidar pose.
+
+        Sends ``lidarpose`` (command id 11).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def apron_state(self) -> dict[str, Any]:
+        """Charging pad status.
+
+        Sends ``apron_state`` (command id 12).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def mavlink_msgs(self) -> dict[str, Any]:
+        """MAVLink message counts.
+
+        Sends ``mavlink_msgs`` (command id 13).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def get_submap_info(self) -> dict[str, Any]:
+        """Map id and keyframe count.
+
+        Sends ``get_submap_info`` (command id 14).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def show_sp(self) -> dict[str, Any]:
+        """Current setpoint.
+
+        Sends ``show_sp`` (command id 15).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def show_apguid2(self) -> dict[str, Any]:
+        """Autopilot guid2.
+
+        Sends ``show_apguid2`` (command id 16).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def showmsg(self, count: int | None = None) -> dict[str, Any]:
+        """Recent log messages.
+
+        Sends ``showmsg [count]`` (command id 17).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def takeoff(self) -> dict[str, Any]:
+        """Take off.
+
+        Sends ``takeoff`` (command id 18).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def land(self) -> dict[str, Any]:
+        """Emergency land.
+
+        Sends ``land`` (command id 19).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def rtl(self) -> dict[str, Any]:
+        """Return to launch.
+
+        Sends ``rtl`` (command id 20).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def mrtl(self) -> dict[str, Any]:
+        """Mission return to launch.
+
+        Sends ``mrtl`` (command id 21).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def tether_land(self) -> dict[str, Any]:
+        """Tethered landing.
+
+        Sends ``tether_land`` (command id 22).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def set_sp_ned(self, x: float, y: float, z: float, yaw: float) -> dict[str, Any]:
+        """Set the NED setpoint (metres, radians).
+
+        Sends ``set_sp_ned x:y:z:yaw`` (command id 23).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def tunnelfly(self, on: bool) -> dict[str, Any]:
+        """Tunnel fly mode off/on.
+
+        Sends ``tunnelfly 0|1`` (command id 24).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def disarm(self) -> dict[str, Any]:
+        """Force disarm.
+
+        Sends ``disarm`` (command id 25).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def sleep(self) -> dict[str, Any]:
+        """Enter sleep mode.
+
+        Sends ``sleep`` (command id 26).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def wakeup(self) -> dict[str, Any]:
+        """Wake from sleep.
+
+        Sends ``wakeup`` (command id 27).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def autosleep_enable(self, on: bool) -> dict[str, Any]:
+        """Auto-sleep off/on.
+
+        Sends ``autosleep_enable 0|1`` (command id 28).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def zyhk(self, heights: Sequence[float], land: tuple[float, float, float] | None = None) -> dict[str, Any]:
+        """Hover at several heights, then land.
+
+        Sends ``zyhk h1,h2,... [lx,ly,lyaw]`` (command id 29).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def relocate_pos(self, x: float, y: float, z: float, yaw: float) -> dict[str, Any]:
+        """Relocate the position (needs map_locate).
+
+        Sends ``relocate_pos x,y,z,yaw`` (command id 30).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def mission(self, ext_id: int, payload: dict[str, Any] | list[Any] | str) -> dict[str, Any]:
+        """Submit a mission.
+
+        Sends ``mission ext_id:path_or_json`` (command id 31).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def plan(self, plan_string: str) -> dict[str, Any]:
+        """Start a flight plan.
+
+        Sends ``plan plan_string`` (command id 32).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def unlock_plan(self) -> dict[str, Any]:
+        """Clear the plan execution lock.
+
+        Sends ``unlock_plan`` (command id 33).
+        Gates: refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def mw_list(self) -> dict[str, Any]:
+        """List mission waypoints.
+
+        Sends ``mw_list`` (command id 34).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def mw_exec(self, ext_id: int, wp_ids: Sequence[int]) -> dict[str, Any]:
+        """Execute waypoints by id.
+
+        Sends ``mw_exec ext_id:id,id,...`` (command id 35).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def ai1_mission(self, task_id: str, mission_file: str) -> dict[str, Any]:
+        """Submit an AI1 mission.
+
+        Sends ``ai1_mission task_id:mission_file`` (command id 36).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def obs_mission(self, on: bool) -> dict[str, Any]:
+        """Obstacle mission live mode off/on.
+
+        Sends ``obs_mission 0|1`` (command id 37).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def dump_missionresult(self, ext_id: int | None = None) -> dict[str, Any]:
+        """Dump a mission result.
+
+        Sends ``dump_missionresult [ext_id]`` (command id 38).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def dump_missionlist(self) -> dict[str, Any]:
+        """Dump the short mission request list.
+
+        Sends ``dump_missionlist`` (command id 39).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def abort_report(self, abort_id: int | None = None) -> dict[str, Any]:
+        """Abort or finish a mission report.
+
+        Sends ``abort_report [abort_id]`` (command id 40).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def set_taskname(self, name: str) -> dict[str, Any]:
+        """Set the current task name.
+
+        Sends ``set_taskname name`` (command id 41).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def savemap(self, name: str) -> dict[str, Any]:
+        """Save the current map.
+
+        Sends ``savemap name`` (command id 42).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def set_maplocate(self, on: bool) -> dict[str, Any]:
+        """Map localisation off/on.
+
+        Sends ``set_maplocate 0|1`` (command id 43).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def set_mappath(self, path: str) -> dict[str, Any]:
+        """Set the localisation map path.
+
+        Sends ``set_mappath path`` (command id 44).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def list_maps(self) -> dict[str, Any]:
+        """List saved maps.
+
+        Sends ``list_maps`` (command id 45).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def rm_map(self, name: str) -> dict[str, Any]:
+        """Remove a saved map.
+
+        Sends ``rm_map name`` (command id 46).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def capture(self) -> dict[str, Any]:
+        """Capture an RGB and infrared photo.
+
+        Sends ``capture`` (command id 47).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def snapshot(self) -> dict[str, Any]:
+        """System snapshot.
+
+        Sends ``snapshot`` (command id 48).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def record(self) -> dict[str, Any]:
+        """Toggle video recording.
+
+        Sends ``record`` (command id 49).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def savebag(self, on: bool) -> dict[str, Any]:
+        """Stop/start bag recording.
+
+        Sends ``savebag 0|1`` (command id 50).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def siyi_reboot(self) -> dict[str, Any]:
+        """Reboot the SIYI camera/gimbal.
+
+        Sends ``siyi_reboot`` (command id 51).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def siyi_format(self) -> dict[str, Any]:
+        """Format the SIYI SD card.
+
+        Sends ``siyi_format`` (command id 52).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def siyi_center(self) -> dict[str, Any]:
+        """Center the SIYI gimbal.
+
+        Sends ``siyi_center`` (command id 53).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def siyi_init(self) -> dict[str, Any]:
+        """Initialise SIYI (close HDMI).
+
+        Sends ``siyi_init`` (command id 54).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def siyi_downvideo(self, vid: int | None = None) -> dict[str, Any]:
+        """Download the latest video.
+
+        Sends ``siyi_downvideo [vid]`` (command id 55).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def siyi_sync(self) -> dict[str, Any]:
+        """Trigger SIYI sync.
+
+        Sends ``siyi_sync`` (command id 56).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def ledon(self) -> dict[str, Any]:
+        """LED on.
+
+        Sends ``ledon`` (command id 57).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def ledoff(self) -> dict[str, Any]:
+        """LED off.
+
+        Sends ``ledoff`` (command id 58).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def ledenable(self) -> dict[str, Any]:
+        """Enable LED control.
+
+        Sends ``ledenable`` (command id 59).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def leddisable(self) -> dict[str, Any]:
+        """Disable LED control.
+
+        Sends ``leddisable`` (command id 60).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def ledpwm(self, pwm: int) -> dict[str, Any]:
+        """Set the LED PWM value (0-65535).
+
+        Sends ``ledpwm pwm`` (command id 61).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def led_blink(self) -> dict[str, Any]:
+        """Start LED blinking.
+
+        Sends ``led_blink`` (command id 62).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def set_param(self, name: str, value: str | int | float | bool) -> dict[str, Any]:
+        """Set a parameter.
+
+        Sends ``set_param name:value`` (command id 63).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def reset_param(self) -> dict[str, Any]:
+        """Reset all parameters to defaults.
+
+        Sends ``reset_param`` (command id 64).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def save_param(self, on: bool) -> dict[str, Any]:
+        """Save parameters persistently.
+
+        Sends ``save_param 0|1`` (command id 65).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def passwd(self, new_password: str) -> dict[str, Any]:
+        """Change the login password.
+
+        Sends ``passwd new_password`` (command id 66).
+        Gates: refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def apron_vol(self, voltage: float) -> dict[str, Any]:
+        """Set the charging voltage.
+
+        Sends ``apron_vol voltage`` (command id 67).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def apron_amp(self, amperage: float) -> dict[str, Any]:
+        """Set the charging current.
+
+        Sends ``apron_amp amperage`` (command id 68).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def reboot_node(self) -> dict[str, Any]:
+        """Reboot the flight control node.
+
+        Sends ``reboot_node`` (command id 69).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def reboot_ap(self) -> dict[str, Any]:
+        """Reboot the autopilot.
+
+        Sends ``reboot_ap`` (command id 70).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def reboot_system(self) -> dict[str, Any]:
+        """Reboot the onboard computer.
+
+        Sends ``reboot_system`` (command id 71).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def poweroff_system(self) -> dict[str, Any]:
+        """Power off the onboard computer.
+
+        Sends ``poweroff_system`` (command id 72).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def prepare_poweroff(self) -> dict[str, Any]:
+        """Flush logs before power-off.
+
+        Sends ``prepare_poweroff`` (command id 73).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def reboot_dlo(self) -> dict[str, Any]:
+        """Reboot DLO.
+
+        Sends ``reboot_dlo`` (command id 74).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def restart_dlo(self) -> dict[str, Any]:
+        """Restart the DLO pipeline.
+
+        Sends ``restart_dlo`` (command id 75).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def kill_livox(self, script: str | None = None) -> dict[str, Any]:
+        """Kill the Livox driver.
+
+        Sends ``kill_livox [script]`` (command id 76).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def lidaronoff(self, on: bool) -> dict[str, Any]:
+        """Lidar off/on.
+
+        Sends ``lidaronoff 0|1`` (command id 77).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def lidarwarn(self) -> dict[str, Any]:
+        """Lidar warning zones.
+
+        Sends ``lidarwarn`` (command id 78).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def utg_get(self) -> dict[str, Any]:
+        """Trigger a UTG thickness read.
+
+        Sends ``utg_get`` (command id 79).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def utg_set(self, speed: float) -> dict[str, Any]:
+        """Set the UTG sonic speed.
+
+        Sends ``utg_set speed`` (command id 80).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def grabber_ctrl(self, pwm: int) -> dict[str, Any]:
+        """Set the grabber PWM value (0-65535).
+
+        Sends ``grabber_ctrl pwm`` (command id 81).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def ara8_center(self) -> dict[str, Any]:
+        """ARA8 to center mode.
+
+        Sends ``ara8_center`` (command id 82).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def ara8_pitch(self, angle: float) -> dict[str, Any]:
+        """Set the ARA8 pitch (-90..90).
+
+        Sends ``ara8_pitch angle`` (command id 83).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def cv_test(self) -> dict[str, Any]:
+        """Trigger a CV server test.
+
+        Sends ``cv_test`` (command id 84).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def preflight_check(self) -> dict[str, Any]:
+        """Run the preflight checks.
+
+        Sends ``preflight_check`` (command id 85).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def preflight_enable(self, on: bool) -> dict[str, Any]:
+        """Preflight checks before takeoff off/on.
+
+        Sends ``preflight_enable 0|1`` (command id 86).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def clear_bags(self, min_gb: float | None = None) -> dict[str, Any]:
+        """Clear old bag files.
+
+        Sends ``clear_bags [min_gb]`` (command id 87).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def clear_images(self, min_gb: float | None = None) -> dict[str, Any]:
+        """Clear old images.
+
+        Sends ``clear_images [min_gb]`` (command id 88).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def list_imagedir(self, size: int | None = None) -> dict[str, Any]:
+        """List image directories.
+
+        Sends ``list_imagedir [size]`` (command id 89).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def rm_imagedir(self, name: str) -> dict[str, Any]:
+        """Remove an image directory.
+
+        Sends ``rm_imagedir name`` (command id 90).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def test_wp(self, x: float, y: float, z: float) -> dict[str, Any]:
+        """Test waypoint reachability.
+
+        Sends ``test_wp x:y:z`` (command id 91).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def test_listwp(self, file_path: str) -> dict[str, Any]:
+        """Test a waypoint list from a file.
+
+        Sends ``test_listwp file_path`` (command id 92).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def test_notif(self) -> dict[str, Any]:
+        """Test the notification server.
+
+        Sends ``test_notif`` (command id 93).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def savemsg(self) -> dict[str, Any]:
+        """Save messages to the log.
+
+        Sends ``savemsg`` (command id 94).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def bms_setpower(self, on: bool) -> dict[str, Any]:
+        """BMS power output off/on.
+
+        Sends ``bms_setpower 0|1`` (command id 95).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def bms_setcharge(self, on: bool) -> dict[str, Any]:
+        """BMS charging off/on.
+
+        Sends ``bms_setcharge 0|1`` (command id 96).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def help(self) -> dict[str, Any]:
+        """List the commands.
+
+        Sends ``help`` (command id 97).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def admin_lock(self) -> dict[str, Any]:
+        """Enable the vehicle-wide lock (admin only).
+
+        Sends ``admin_lock`` (command id 98).
+        Gates: admin sessions only.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def admin_unlock(self) -> dict[str, Any]:
+        """Disable the vehicle-wide lock (admin only).
+
+        Sends ``admin_unlock`` (command id 99).
+        Gates: admin sessions only.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+
+class Fleet:
+    """Vehicles through an MQTT broker (lluavd ``--uplink``).
+
+    Connects at once to ``url`` (``mqtt://HOST[:PORT]``, or ``mqtts://``
+    checked against the system's trust store or only ``cafile``), as
+    ``client_id`` (1-64 of ``[A-Za-z0-9_-]``; default
+    ``lluav-<user>-<random>``), with ``username``/``password`` at the
+    broker when given. ``timeout`` bounds the connection and the wait for
+    each answer, in seconds.
+
+    :meth:`vehicles` lists every vehicle heard of; :meth:`vehicle` gives
+    one, with the same methods as :class:`lluav.Client`. One fleet is one
+    session on each vehicle (its client id); calls from several threads are
+    safe."""
+    url: str
+    timeout: float
+    client_id: str
+    def __init__(
+        self,
+        url: str,
+        client_id: str | None = None,
+        username: str | None = None,
+        password: str | None = None,
+        cafile: str | None = None,
+        timeout: float = 10.0,
+    ) -> None: ...
+    def vehicles(self) -> dict[str, dict[str, Any]]:
+        """Every vehicle heard of: its id to ``{"online": bool, "state": the
+        latest state response or None, "age_s": seconds since that state, or
+        None}``. The first call waits up to 1 s for the retained messages."""
+    def vehicle(self, vehicle: str, password: str | None = None) -> FleetVehicle:
+        """The vehicle called ``vehicle``; logs in first when ``password``
+        is given (a refused login raises CommandError)."""
+    def close(self) -> None:
+        """Disconnects from the broker. Idempotent."""
+    @property
+    def closed(self) -> bool:
+        """Whether the fleet is closed."""
+    def __enter__(self) -> Fleet: ...
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+class AsyncFleetVehicle:
+    """One vehicle reached through an :class:`AsyncFleet`: every command is
+    a coroutine method, exactly as on :class:`lluav.AsyncClient`; ``call``
+    sends any frame. Concurrent calls are safe: each gets its own answer."""
+    fleet: AsyncFleet
+    vehicle: str
+    def __init__(self, fleet: AsyncFleet, vehicle: str) -> None: ...
+    async def call(self, frame: str) -> dict[str, Any]:
+        """Sends any frame (``"set_sp_ned 1:2:-3:0"``) as it is and returns
+        the response; the vehicle, not the SDK, decides whether it is valid."""
+    async def login(self, password: str) -> dict[str, Any]:
+        """Log this session in (1025: admin, 0315: log out).
+
+        Sends ``login <password>`` (command id 1).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def state(self) -> dict[str, Any]:
+        """Full FSM state.
+
+        Sends ``state`` (command id 2).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def param(self) -> dict[str, Any]:
+        """All parameters.
+
+        Sends ``param`` (command id 3).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def get_param(self, name: str) -> dict[str, Any]:
+        """One parameter.
+
+        Sends ``get_param name`` (command id 4).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def ver(self) -> dict[str, Any]:
+        """Version information.
+
+        Sends ``ver`` (command id 5).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def sysinfo(self) -> dict[str, Any]:
+        """Uptime, RAM and loads.
+
+        Sends ``sysinfo`` (command id 6).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def diskusage(self) -> dict[str, Any]:
+        """Free disk space.
+
+        Sends ``diskusage`` (command id 7).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def statics(self) -> dict[str, Any]:
+        """Communication and recording statistics.
+
+        Sends ``statics`` (command id 8).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def machineid(self) -> dict[str, Any]:
+        """Unique hardware id.
+
+        Sends ``machineid`` (command id 9).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def hud1(self) -> dict[str, Any]:
+        """Keyframes, ENU position and extras.
+
+        Sends ``hud1`` (command id 10).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def lidarpose(self) -> dict[str, Any]:
+        """Lidar pose.
+
+        Sends ``lidarpose`` (command id 11).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def apron_state(self) -> dict[str, Any]:
+        """Charging pad status.
+
+        Sends ``apron_state`` (command id 12).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def mavlink_msgs(self) -> dict[str, Any]:
+        """MAVLink message counts.
+
+        Sends ``mavlink_msgs`` (command id 13).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def get_submap_info(self) -> dict[str, Any]:
+        """Map id and keyframe count.
+
+        Sends ``get_submap_info`` (command id 14).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def show_sp(self) -> dict[str, Any]:
+        """Current setpoint.
+
+        Sends ``show_sp`` (command id 15).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def show_apguid2(self) -> dict[str, Any]:
+        """Autopilot guid2.
+
+        Sends ``show_apguid2`` (command id 16).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def showmsg(self, count: int | None = None) -> dict[str, Any]:
+        """Recent log messages.
+
+        Sends ``showmsg [count]`` (command id 17).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def takeoff(self) -> dict[str, Any]:
+        """Take off.
+
+        Sends ``takeoff`` (command id 18).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def land(self) -> dict[str, Any]:
+        """Emergency land.
+
+        Sends ``land`` (command id 19).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def rtl(self) -> dict[str, Any]:
+        """Return to launch.
+
+        Sends ``rtl`` (command id 20).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def mrtl(self) -> dict[str, Any]:
+        """Mission return to launch.
+
+        Sends ``mrtl`` (command id 21).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def tether_land(self) -> dict[str, Any]:
+        """Tethered landing.
+
+        Sends ``tether_land`` (command id 22).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def set_sp_ned(self, x: float, y: float, z: float, yaw: float) -> dict[str, Any]:
+        """Set the NED setpoint (metres, radians).
+
+        Sends ``set_sp_ned x:y:z:yaw`` (command id 23).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def tunnelfly(self, on: bool) -> dict[str, Any]:
+        """Tunnel fly mode off/on.
+
+        Sends ``tunnelfly 0|1`` (command id 24).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def disarm(self) -> dict[str, Any]:
+        """Force disarm.
+
+        Sends ``disarm`` (command id 25).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def sleep(self) -> dict[str, Any]:
+        """Enter sleep mode.
+
+        Sends ``sleep`` (command id 26).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def wakeup(self) -> dict[str, Any]:
+        """Wake from sleep.
+
+        Sends ``wakeup`` (command id 27).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def autosleep_enable(self, on: bool) -> dict[str, Any]:
+        """Auto-sleep off/on.
+
+        Sends ``autosleep_enable 0|1`` (command id 28).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def zyhk(self, heights: Sequence[float], land: tuple[float, float, float] | None = None) -> dict[str, Any]:
+        """Hover at several heights, then land.
+
+        Sends ``zyhk h1,h2,... [lx,ly,lyaw]`` (command id 29).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def relocate_pos(self, x: float, y: float, z: float, yaw: float) -> dict[str, Any]:
+        """Relocate the position (needs map_locate).
+
+        Sends ``relocate_pos x,y,z,yaw`` (command id 30).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def mission(self, ext_id: int, payload: dict[str, Any] | list[Any] | str) -> dict[str, Any]:
+        """Submit a mission.
+
+        Sends ``mission ext_id:path_or_json`` (command id 31).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def plan(self, plan_string: str) -> dict[str, Any]:
+        """Start a flight plan.
+
+        Sends ``plan plan_string`` (command id 32).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def unlock_plan(self) -> dict[str, Any]:
+        """Clear the plan execution lock.
+
+        Sends ``unlock_plan`` (command id 33).
+        Gates: refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def mw_list(self) -> dict[str, Any]:
+        """List mission waypoints.
+
+        Sends ``mw_list`` (command id 34).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def mw_exec(self, ext_id: int, wp_ids: Sequence[int]) -> dict[str, Any]:
+        """Execute waypoints by id.
+
+        Sends ``mw_exec ext_id:id,id,...`` (command id 35).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def ai1_mission(self, task_id: str, mission_file: str) -> dict[str, Any]:
+        """Submit an AI1 mission.
+
+        Sends ``ai1_mission task_id:mission_file`` (command id 36).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def obs_mission(self, on: bool) -> dict[str, Any]:
+        """Obstacle mission live mode off/on.
+
+        Sends ``obs_mission 0|1`` (command id 37).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def dump_missionresult(self, ext_id: int | None = None) -> dict[str, Any]:
+        """Dump a mission result.
+
+        Sends ``dump_missionresult [ext_id]`` (command id 38).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def dump_missionlist(self) -> dict[str, Any]:
+        """Dump the short mission request list.
+
+        Sends ``dump_missionlist`` (command id 39).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def abort_report(self, abort_id: int | None = None) -> dict[str, Any]:
+        """Abort or finish a mission report.
+
+        Sends ``abort_report [abort_id]`` (command id 40).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def set_taskname(self, name: str) -> dict[str, Any]:
+        """Set the current task name.
+
+        Sends ``set_taskname name`` (command id 41).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def savemap(self, name: str) -> dict[str, Any]:
+        """Save the current map.
+
+        Sends ``savemap name`` (command id 42).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def set_maplocate(self, on: bool) -> dict[str, Any]:
+        """Map localisation off/on.
+
+        Sends ``set_maplocate 0|1`` (command id 43).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def set_mappath(self, path: str) -> dict[str, Any]:
+        """Set the localisation map path.
+
+        Sends ``set_mappath path`` (command id 44).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def list_maps(self) -> dict[str, Any]:
+        """List saved maps.
+
+        Sends ``list_maps`` (command id 45).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def rm_map(self, name: str) -> dict[str, Any]:
+        """Remove a saved map.
+
+        Sends ``rm_map name`` (command id 46).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def capture(self) -> dict[str, Any]:
+        """Capture an RGB and infrared photo.
+
+        Sends ``capture`` (command id 47).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def snapshot(self) -> dict[str, Any]:
+        """System snapshot.
+
+        Sends ``snapshot`` (command id 48).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def record(self) -> dict[str, Any]:
+        """Toggle video recording.
+
+        Sends ``record`` (command id 49).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def savebag(self, on: bool) -> dict[str, Any]:
+        """Stop/start bag recording.
+
+        Sends ``savebag 0|1`` (command id 50).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def siyi_reboot(self) -> dict[str, Any]:
+        """Reboot the SIYI camera/gimbal.
+
+        Sends ``siyi_reboot`` (command id 51).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def siyi_format(self) -> dict[str, Any]:
+        """Format the SIYI SD card.
+
+        Sends ``siyi_format`` (command id 52).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def siyi_center(self) -> dict[str, Any]:
+        """Center the SIYI gimbal.
+
+        Sends ``siyi_center`` (command id 53).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def siyi_init(self) -> dict[str, Any]:
+        """Initialise SIYI (close HDMI).
+
+        Sends ``siyi_init`` (command id 54).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def siyi_downvideo(self, vid: int | None = None) -> dict[str, Any]:
+        """Download the latest video.
+
+        Sends ``siyi_downvideo [vid]`` (command id 55).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def siyi_sync(self) -> dict[str, Any]:
+        """Trigger SIYI sync.
+
+        Sends ``siyi_sync`` (command id 56).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def ledon(self) -> dict[str, Any]:
+        """LED on.
+
+        Sends ``ledon`` (command id 57).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def ledoff(self) -> dict[str, Any]:
+        """LED off.
+
+        Sends ``ledoff`` (command id 58).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def ledenable(self) -> dict[str, Any]:
+        """Enable LED control.
+
+        Sends ``ledenable`` (command id 59).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def leddisable(self) -> dict[str, Any]:
+        """Disable LED control.
+
+        Sends ``leddisable`` (command id 60).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def ledpwm(self, pwm: int) -> dict[str, Any]:
+        """Set the LED PWM value (0-65535).
+
+        Sends ``ledpwm pwm`` (command id 61).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def led_blink(self) -> dict[str, Any]:
+        """Start LED blinking.
+
+        Sends ``led_blink`` (command id 62).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def set_param(self, name: str, value: str | int | float | bool) -> dict[str, Any]:
+        """Set a parameter.
+
+        Sends ``set_param name:value`` (command id 63).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def reset_param(self) -> dict[str, Any]:
+        """Reset all parameters to defaults.
+
+        Sends ``reset_param`` (command id 64).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def save_param(self, on: bool) -> dict[str, Any]:
+        """Save parameters persistently.
+
+        Sends ``save_param 0|1`` (command id 65).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def passwd(self, new_password: str) -> dict[str, Any]:
+        """Change the login password.
+
+        Sends ``passwd new_password`` (command id 66).
+        Gates: refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def apron_vol(self, voltage: float) -> dict[str, Any]:
+        """Set the charging voltage.
+
+        Sends ``apron_vol voltage`` (command id 67).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def apron_amp(self, amperage: float) -> dict[str, Any]:
+        """Set the charging current.
+
+        Sends ``apron_amp amperage`` (command id 68).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def reboot_node(self) -> dict[str, Any]:
+        """Reboot the flight control node.
+
+        Sends ``reboot_node`` (command id 69).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def reboot_ap(self) -> dict[str, Any]:
+        """Reboot the autopilot.
+
+        Sends ``reboot_ap`` (command id 70).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def reboot_system(self) -> dict[str, Any]:
+        """Reboot the onboard computer.
+
+        Sends ``reboot_system`` (command id 71).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def poweroff_system(self) -> dict[str, Any]:
+        """Power off the onboard computer.
+
+        Sends ``poweroff_system`` (command id 72).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def prepare_poweroff(self) -> dict[str, Any]:
+        """Flush logs before power-off.
+
+        Sends ``prepare_poweroff`` (command id 73).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def reboot_dlo(self) -> dict[str, Any]:
+        """Reboot DLO.
+
+        Sends ``reboot_dlo`` (command id 74).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def restart_dlo(self) -> dict[str, Any]:
+        """Restart the DLO pipeline.
+
+        Sends ``restart_dlo`` (command id 75).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def kill_livox(self, script: str | None = None) -> dict[str, Any]:
+        """Kill the Livox driver.
+
+        Sends ``kill_livox [script]`` (command id 76).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def lidaronoff(self, on: bool) -> dict[str, Any]:
+        """Lidar off/on.
+
+        Sends ``lidaronoff 0|1`` (command id 77).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def lidarwarn(self) -> dict[str, Any]:
+        """Lidar warning zones.
+
+        Sends ``lidarwarn`` (command id 78).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def utg_get(self) -> dict[str, Any]:
+        """Trigger a UTG thickness read.
+
+        Sends ``utg_get`` (command id 79).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def utg_set(self, speed: float) -> dict[str, Any]:
+        """Set the UTG sonic speed.
+
+        Sends ``utg_set speed`` (command id 80).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def grabber_ctrl(self, pwm: int) -> dict[str, Any]:
+        """Set the grabber PWM value (0-65535).
+
+        Sends ``grabber_ctrl pwm`` (command id 81).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def ara8_center(self) -> dict[str, Any]:
+        """ARA8 to center mode.
+
+        Sends ``ara8_center`` (command id 82).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def ara8_pitch(self, angle: float) -> dict[str, Any]:
+        """Set the ARA8 pitch (-90..90).
+
+        Sends ``ara8_pitch angle`` (command id 83).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def cv_test(self) -> dict[str, Any]:
+        """Trigger a CV server test.
+
+        Sends ``cv_test`` (command id 84).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def preflight_check(self) -> dict[str, Any]:
+        """Run the preflight checks.
+
+        Sends ``preflight_check`` (command id 85).
+        Gates: refused while the vehicle is armed.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def preflight_enable(self, on: bool) -> dict[str, Any]:
+        """Preflight checks before takeoff off/on.
+
+        Sends ``preflight_enable 0|1`` (command id 86).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def clear_bags(self, min_gb: float | None = None) -> dict[str, Any]:
+        """Clear old bag files.
+
+        Sends ``clear_bags [min_gb]`` (command id 87).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def clear_images(self, min_gb: float | None = None) -> dict[str, Any]:
+        """Clear old images.
+
+        Sends ``clear_images [min_gb]`` (command id 88).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def list_imagedir(self, size: int | None = None) -> dict[str, Any]:
+        """List image directories.
+
+        Sends ``list_imagedir [size]`` (command id 89).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def rm_imagedir(self, name: str) -> dict[str, Any]:
+        """Remove an image directory.
+
+        Sends ``rm_imagedir name`` (command id 90).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def test_wp(self, x: float, y: float, z: float) -> dict[str, Any]:
+        """Test waypoint reachability.
+
+        Sends ``test_wp x:y:z`` (command id 91).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def test_listwp(self, file_path: str) -> dict[str, Any]:
+        """Test a waypoint list from a file.
+
+        Sends ``test_listwp file_path`` (command id 92).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def test_notif(self) -> dict[str, Any]:
+        """Test the notification server.
+
+        Sends ``test_notif`` (command id 93).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def savemsg(self) -> dict[str, Any]:
+        """Save messages to the log.
+
+        Sends ``savemsg`` (command id 94).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def bms_setpower(self, on: bool) -> dict[str, Any]:
+        """BMS power output off/on.
+
+        Sends ``bms_setpower 0|1`` (command id 95).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def bms_setcharge(self, on: bool) -> dict[str, Any]:
+        """BMS charging off/on.
+
+        Sends ``bms_setcharge 0|1`` (command id 96).
+        Gates: refused while the vehicle is armed; refused in lock mode unless the session is admin.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def help(self) -> dict[str, Any]:
+        """List the commands.
+
+        Sends ``help`` (command id 97).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def admin_lock(self) -> dict[str, Any]:
+        """Enable the vehicle-wide lock (admin only).
+
+        Sends ``admin_lock`` (command id 98).
+        Gates: admin sessions only.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def admin_unlock(self) -> dict[str, Any]:
+        """Disable the vehicle-wide lock (admin only).
+
+        Sends ``admin_unlock`` (command id 99).
+        Gates: admin sessions only.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+
+class AsyncFleet:
+    """:class:`Fleet` on asyncio: ``async with lluav.AsyncFleet(url) as f:``
+    connects (so does ``await f.connect()``); ``await f.vehicles()``;
+    ``v = await f.vehicle(V, password=None)`` then ``await v.state()``.
+    The arguments are as for :class:`Fleet`."""
+    url: str
+    timeout: float
+    def __init__(
+        self,
+        url: str,
+        client_id: str | None = None,
+        username: str | None = None,
+        password: str | None = None,
+        cafile: str | None = None,
+        timeout: float = 10.0,
+    ) -> None: ...
+    @property
+    def client_id(self) -> str | None:
+        """The client id, once connected."""
+    async def connect(self) -> AsyncFleet:
+        """Connects to the broker (paho's connect blocks: it runs off the loop)."""
+    async def vehicles(self) -> dict[str, dict[str, Any]]:
+        """As :meth:`Fleet.vehicles`."""
+    async def vehicle(self, vehicle: str, password: str | None = None) -> AsyncFleetVehicle:
+        """The vehicle called ``vehicle``; logs in first when ``password``
+        is given (a refused login raises CommandError)."""
+    async def close(self) -> None:
+        """Disconnects from the broker. Idempotent."""
+    @property
+    def closed(self) -> bool:
+        """Whether the fleet is closed or not yet connected."""
+    async def __aenter__(self) -> AsyncFleet: ...
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...

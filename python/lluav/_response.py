@@ -25,8 +25,15 @@ def check(message: str | bytes, cid: int) -> dict[str, Any]:
         response = _loads(message)
     except ValueError:
         raise ConnectionError(f"the server sent something that is not JSON: {message[:80]!r}") from None
+    return check_response(response, cid, message)
+
+
+def check_response(response: Any, cid: int, text: str | None = None) -> dict[str, Any]:
+    """:func:`check` of a response already read from JSON (an uplink
+    answer's ``response``); ``text`` is what to quote when it is not one."""
     if not isinstance(response, dict) or type(response.get("ret")) is not int:
-        raise ConnectionError(f"the server sent something that is not a protocol response: {message[:80]!r}")
+        quoted = text if text is not None else json.dumps(response)
+        raise ConnectionError(f"the server sent something that is not a protocol response: {quoted[:80]!r}")
     cmd = response.get("cmd")
     if cmd != cid and not (cmd == 0 and response["ret"] != 0):
         raise ConnectionError(

@@ -1,5 +1,6 @@
 """Writes lluav/__init__.pyi and lluav/_core.pyi, the type stubs of the
-`lluav` package, from the installed package itself: the per-command methods of Client and AsyncClient
+`lluav` package, from the installed package itself: the per-command methods of Client, AsyncClient,
+FleetVehicle and AsyncFleetVehicle
 come from lluav-core's table (names, parameters, types, docstrings), the
 rest from the template below, with the docstrings of the running code.
 
@@ -112,6 +113,84 @@ class AsyncClient:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None: ...
 {async_commands}
+
+class FleetVehicle:
+{FleetVehicle}
+    fleet: Fleet
+    vehicle: str
+    def __init__(self, fleet: Fleet, vehicle: str) -> None: ...
+    def call(self, frame: str) -> dict[str, Any]:
+{FleetVehicle.call}
+{client_commands}
+
+class Fleet:
+{Fleet}
+    url: str
+    timeout: float
+    client_id: str
+    def __init__(
+        self,
+        url: str,
+        client_id: str | None = None,
+        username: str | None = None,
+        password: str | None = None,
+        cafile: str | None = None,
+        timeout: float = 10.0,
+    ) -> None: ...
+    def vehicles(self) -> dict[str, dict[str, Any]]:
+{Fleet.vehicles}
+    def vehicle(self, vehicle: str, password: str | None = None) -> FleetVehicle:
+{Fleet.vehicle}
+    def close(self) -> None:
+{Fleet.close}
+    @property
+    def closed(self) -> bool:
+{Fleet.closed}
+    def __enter__(self) -> Fleet: ...
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+class AsyncFleetVehicle:
+{AsyncFleetVehicle}
+    fleet: AsyncFleet
+    vehicle: str
+    def __init__(self, fleet: AsyncFleet, vehicle: str) -> None: ...
+    async def call(self, frame: str) -> dict[str, Any]:
+{AsyncFleetVehicle.call}
+{async_commands}
+
+class AsyncFleet:
+{AsyncFleet}
+    url: str
+    timeout: float
+    def __init__(
+        self,
+        url: str,
+        client_id: str | None = None,
+        username: str | None = None,
+        password: str | None = None,
+        cafile: str | None = None,
+        timeout: float = 10.0,
+    ) -> None: ...
+    @property
+    def client_id(self) -> str | None:
+{AsyncFleet.client_id}
+    async def connect(self) -> AsyncFleet:
+{AsyncFleet.connect}
+    async def vehicles(self) -> dict[str, dict[str, Any]]:
+{AsyncFleet.vehicles}
+    async def vehicle(self, vehicle: str, password: str | None = None) -> AsyncFleetVehicle:
+{AsyncFleet.vehicle}
+    async def close(self) -> None:
+{AsyncFleet.close}
+    @property
+    def closed(self) -> bool:
+{AsyncFleet.closed}
+    async def __aenter__(self) -> AsyncFleet: ...
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
 """
 
 
@@ -220,13 +299,17 @@ def render() -> str:
     docs: dict[str, str] = {"module_doc": docstring(lluav.__doc__, 0), "all": repr(sorted(lluav.__all__))}
     for name in ["Error", "InvalidArguments", "UnknownCommand", "CommandError", "ConnectionError"]:
         docs[name] = docstring(getattr(lluav, name).__doc__, 4)
-    for name in ["Client", "AsyncClient"]:
+    for name in ["Client", "AsyncClient", "Fleet", "AsyncFleet", "FleetVehicle", "AsyncFleetVehicle"]:
         docs[name] = docstring(getattr(lluav, name).__doc__, 4)
     for name in ["parse", "encode"]:
         docs[name] = docstring(getattr(lluav, name).__doc__, 4)
     for cls, members in [
         (lluav.Client, ["call", "close", "closed"]),
         (lluav.AsyncClient, ["connect", "call", "close", "closed"]),
+        (lluav.FleetVehicle, ["call"]),
+        (lluav.AsyncFleetVehicle, ["call"]),
+        (lluav.Fleet, ["vehicles", "vehicle", "close", "closed"]),
+        (lluav.AsyncFleet, ["client_id", "connect", "vehicles", "vehicle", "close", "closed"]),
     ]:
         for member in members:
             docs[f"{cls.__name__}.{member}"] = docstring(inspect.getattr_static(cls, member).__doc__, 8)

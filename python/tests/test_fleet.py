@@ -1,0 +1,188 @@
+"""lluav.Fleet and lluav.AsyncFleet against real lluavd vehicles through a
+real broker (Mosquitto): the same methods, argument checks and errors as
+lluav.Client, the fleet's listing, offline vehicles, several vehicles at
+once, broker credentials and mqtts://."""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Callable
+
+import pytest
+from broker import Mosquitto, free_port
+from test_tls import self_signed
+from values import INVALID, call_args
+
+import lluav
+
+PASSWORD = "s3cret"
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[Callable[..., Mosquitto]]:
+    """Starts brokers: `broker(users=None, tls=None)`."""
+    started: list[Mosquitto] = []
+
+    def start(**kwargs) -> Mosquitto:
+        b = Mosquitto(tmp_path / f"broker{len(started)}", **kwargs)
+        started.append(b)
+        return b
+
+    yield start
+    for b in started:
+        b.stop()
+
+
+def vehicle(lluavd, broker: Mosquitto, vid: str, *flags: str, password: str | None = PASSWORD):
+    """lluavd on `broker` as vehicle `vid`, once its status says online."""
+    daemon = lluavd("--uplink", broker.url, "--vehicle-id", vid, *flags, password=password)
+    deadline = time.monotonic() + 30
+    with lluav.Fleet(broker.url, timeout=5) as f:
+        while f.vehicles().get(vid, {}).get("online") is not True:
+            assert time.monotonic() < deadline, daemon.stderr()
+            time.sleep(0.05)
+    return daemon
+
+
+def test_a_fleet_vehicle_has_the_clients_methods_signatures_and_docs():
+    for spec in lluav.COMMANDS:
+        for fleet_cls, client_cls in [(lluav.FleetVehicle, lluav.Client), (lluav.AsyncFleetVehicle, lluav.AsyncClient)]:
+            ours, theirs = getattr(fleet_cls, spec.name), getattr(client_cls, spec.name)
+            assert inspect.signature(ours) == inspect.signature(theirs), spec.name
+            assert ours.__doc__ == theirs.__doc__
+            assert inspect.iscoroutinefunction(ours) == inspect.iscoroutinefunction(theirs)
+
+
+def test_invalid_arguments_of_every_grammar_are_refused_before_sending(broker):
+    b = broker()
+    # Nothing listens for "nobody": anything sent would end in a timeout.
+    with lluav.Fleet(b.url, timeout=0.2) as f:
+        v = f.vehicle("nobody")
+        for spec in lluav.COMMANDS:
+            for entry in INVALID[spec.grammar]:
+                args, kwargs = call_args(entry)
+                with pytest.raises(lluav.InvalidArguments) as caught:
+                    getattr(v, spec.name)(*args, **kwargs)
+                assert caught.value.usage == spec.usage
+        with pytest.raises(ValueError):
+            f.vehicle("a/b")
+
+    async def run() -> None:
+        async with lluav.AsyncFleet(b.url, timeout=0.2) as f:
+            v = await f.vehicle("nobody")
+            with pytest.raises(lluav.InvalidArguments):
+                await v.set_sp_ned(1.0, 2.0, float("nan"), 0.0)
+
+    asyncio.run(run())
+
+
+def test_answers_and_errors_are_the_clients(lluavd, broker):
+    b = broker()
+    daemon = vehicle(lluavd, b, "v1")
+    with lluav.Fleet(b.url) as f, lluav.Client(daemon.url) as c:
+        v = f.vehicle("v1")
+        for call in [lambda x: x.state(), lambda x: x.call("bogus 1"), lambda x: x.login("wrong")]:
+            with pytest.raises(lluav.CommandError) as over_mqtt:
+                call(v)
+            with pytest.raises(lluav.CommandError) as over_ws:
+                call(c)
+            assert (over_mqtt.value.ret, over_mqtt.value.cmd, over_mqtt.value.msg) == (
+                over_ws.value.ret,
+                over_ws.value.cmd,
+                over_ws.value.msg,
+            )
+        assert v.login(PASSWORD)["logged_in"] is True
+        c.login(PASSWORD)
+        strip = lambda r: {k: x for k, x in r.items() if k != "ts"}  # noqa: E731
+        assert strip(v.help()) == strip(c.help())
+        assert strip(v.get_param("takeoff_alt")) == strip(c.get_param("takeoff_alt"))
+        assert v.state()["state"]["uplink"] == "up"
+        with pytest.raises(lluav.CommandError, match="Vehicle is not flying"):
+            v.land()
+        # Another fleet is another client id: another session.
+        with lluav.Fleet(b.url) as other:
+            with pytest.raises(lluav.CommandError, match="Login first!"):
+                other.vehicle("v1").state()
+            with pytest.raises(lluav.CommandError, match="Wrong password!"):
+                other.vehicle("v1", password="wrong")
+            assert other.vehicle("v1", password=PASSWORD).ver()["cmd"] == 5
+
+
+def test_the_listing_shows_online_and_offline_vehicles_with_their_state(lluavd, broker):
+    b = broker()
+    vehicle(lluavd, b, "up1")
+    gone = vehicle(lluavd, b, "gone")
+    assert gone.stop() == 0
+    with lluav.Fleet(b.url) as f:
+        listing = f.vehicles()
+        assert listing["up1"]["online"] is True and listing["gone"]["online"] is False
+        for v in ["up1", "gone"]:
+            assert listing[v]["state"]["cmd"] == 2 and listing[v]["state"]["state"]["fsm"] == "disarmed"
+            assert isinstance(listing[v]["age_s"], float) and listing[v]["age_s"] >= 0
+    with lluav.Fleet(b.url, timeout=0.5) as f:
+        started = time.monotonic()
+        with pytest.raises(lluav.ConnectionError, match="vehicle gone is offline"):
+            f.vehicle("gone").state()
+        assert time.monotonic() - started >= 0.5
+        # The connection is still good.
+        assert f.vehicle("up1", password=PASSWORD).state()["ret"] == 0
+
+
+def test_async_fleet_commands_three_vehicles_at_once(lluavd, broker):
+    b = broker()
+    for vid in ["a1", "a2", "a3"]:
+        vehicle(lluavd, b, vid)
+
+    async def run() -> None:
+        async with lluav.AsyncFleet(b.url) as f:
+            vs = await asyncio.gather(*[f.vehicle(vid, password=PASSWORD) for vid in ["a1", "a2", "a3"]])
+            answers = await asyncio.gather(*[v.siyi_sync() for v in vs for _ in range(10)])
+            assert [a["siyi"]["syncs"] for a in answers[:10]] == list(range(1, 11)), "in order, each once"
+            assert sorted(a["siyi"]["syncs"] for a in answers) == sorted(list(range(1, 11)) * 3)
+            listing = await f.vehicles()
+            assert {vid for vid, v in listing.items() if v["online"]} == {"a1", "a2", "a3"}
+            await vs[0].takeoff()
+            with pytest.raises(lluav.CommandError, match="Not allow when vehicle is ARMED!"):
+                await vs[0].reboot_node()
+        with pytest.raises(lluav.ConnectionError, match="not connected"):
+            await vs[0].state()
+
+    asyncio.run(run())
+
+
+def test_broker_credentials_and_unreachable_brokers(lluavd, broker):
+    b = broker(users={"drone": "fly-s4fe", "ops": "0ps-pw"})
+    daemon = lluavd("--uplink", b.url, "--uplink-user", "drone", "--uplink-password", "fly-s4fe", "--vehicle-id", "c1")
+    with pytest.raises(lluav.ConnectionError, match="cannot connect to the broker"):
+        lluav.Fleet(b.url, username="ops", password="wrong", timeout=5)
+    with lluav.Fleet(b.url, username="ops", password="0ps-pw") as f:
+        deadline = time.monotonic() + 30
+        while f.vehicles().get("c1", {}).get("online") is not True:
+            assert time.monotonic() < deadline, daemon.stderr()
+            time.sleep(0.05)
+        assert f.vehicle("c1").ver()["ret"] == 0
+    # Nothing listens on a port just found free.
+    with pytest.raises(lluav.ConnectionError, match="cannot connect to the broker"):
+        lluav.Fleet(f"mqtt://127.0.0.1:{free_port()}", timeout=2)
+    with pytest.raises(ValueError):
+        lluav.Fleet("http://127.0.0.1:1883")
+
+
+def test_mqtts_with_a_ca_file(lluavd, broker, tmp_path):
+    cert, key = self_signed(tmp_path)
+    b = broker(tls=(cert, key))
+    daemon = lluavd("--uplink", b.url, "--uplink-cafile", str(cert), "--vehicle-id", "t1", password=PASSWORD)
+    with lluav.Fleet(b.url, cafile=str(cert)) as f:
+        deadline = time.monotonic() + 30
+        while f.vehicles().get("t1", {}).get("online") is not True:
+            assert time.monotonic() < deadline, daemon.stderr()
+            time.sleep(0.05)
+        assert f.vehicle("t1", password=PASSWORD).state()["state"]["uplink"] == "up"
+    with pytest.raises(lluav.ConnectionError, match="cannot connect to the broker"):
+        lluav.Fleet(b.url, timeout=5)
+    with pytest.raises(ValueError, match="cafile is for mqtts://"):
+        lluav.Fleet("mqtt://127.0.0.1:1", cafile=str(cert))
