@@ -70,6 +70,12 @@ pub fn check(settings: &Settings) -> Result<(), CheckError> {
                  refuse to start unless `passwd` stored one in the data directory"
             );
         }
+        Err(DaemonError::UplinkNoPassword) => {
+            eprintln!(
+                "lluavd: note: no password is configured and the uplink is on: lluavd will refuse to \
+                 start unless `passwd` stored one in the data directory"
+            );
+        }
         other => {
             other?;
         }

@@ -228,6 +228,13 @@ pub enum DaemonError {
          bind to 127.0.0.1, or pass --allow-default-admin"
     )]
     PublicAdmin(SocketAddr),
+    /// An uplink needs a password or `--allow-no-password`.
+    #[error(
+        "refusing to serve through the broker (--uplink) without a password: anyone the broker lets \
+         publish to this vehicle's requests could fly it. Set --password (or LLUAV_PASSWORD, or \
+         `password` in the config file), or pass --allow-no-password"
+    )]
+    UplinkNoPassword,
     /// The password or the special login values break the rules.
     #[error("invalid password settings: {0}")]
     Password(&'static str),
@@ -497,6 +504,9 @@ pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth<L
     let public_admin = settings.admin_password == lluav_core::session::DEFAULT_ADMIN_PASSWORD;
     if public_admin && beyond_loopback && !settings.allow_default_admin {
         return Err(DaemonError::PublicAdmin(settings.bind));
+    }
+    if password.is_none() && settings.uplink.is_some() && !settings.allow_no_password {
+        return Err(DaemonError::UplinkNoPassword);
     }
     let lockout_ms = |d: Duration| u32::try_from(d.as_millis()).unwrap_or(u32::MAX);
     Auth::with_specials(

@@ -7,6 +7,10 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import os
+import re
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -14,6 +18,7 @@ from typing import Callable
 
 import pytest
 from broker import Mosquitto, free_port
+from conftest import ROOT
 from test_tls import self_signed
 from values import INVALID, call_args
 
@@ -156,7 +161,17 @@ def test_async_fleet_commands_three_vehicles_at_once(lluavd, broker):
 
 def test_broker_credentials_and_unreachable_brokers(lluavd, broker):
     b = broker(users={"drone": "fly-s4fe", "ops": "0ps-pw"})
-    daemon = lluavd("--uplink", b.url, "--uplink-user", "drone", "--uplink-password", "fly-s4fe", "--vehicle-id", "c1")
+    daemon = lluavd(
+        "--uplink",
+        b.url,
+        "--uplink-user",
+        "drone",
+        "--uplink-password",
+        "fly-s4fe",
+        "--vehicle-id",
+        "c1",
+        password=PASSWORD,
+    )
     with pytest.raises(lluav.ConnectionError, match="cannot connect to the broker"):
         lluav.Fleet(b.url, username="ops", password="wrong", timeout=5)
     with lluav.Fleet(b.url, username="ops", password="0ps-pw") as f:
@@ -164,7 +179,7 @@ def test_broker_credentials_and_unreachable_brokers(lluavd, broker):
         while f.vehicles().get("c1", {}).get("online") is not True:
             assert time.monotonic() < deadline, daemon.stderr()
             time.sleep(0.05)
-        assert f.vehicle("c1").ver()["ret"] == 0
+        assert f.vehicle("c1", password=PASSWORD).ver()["ret"] == 0
     # Nothing listens on a port just found free.
     with pytest.raises(lluav.ConnectionError, match="cannot connect to the broker"):
         lluav.Fleet(f"mqtt://127.0.0.1:{free_port()}", timeout=2)
@@ -186,3 +201,23 @@ def test_mqtts_with_a_ca_file(lluavd, broker, tmp_path):
         lluav.Fleet(b.url, timeout=5)
     with pytest.raises(ValueError, match="cafile is for mqtts://"):
         lluav.Fleet("mqtt://127.0.0.1:1", cafile=str(cert))
+
+
+def test_the_readme_fleet_script_runs(lluavd, broker):
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("\n## Fleets and vehicles behind NAT\n", 1)[1].split("\n## ", 1)[0]
+    [script] = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    b = broker()
+    vehicle(lluavd, b, "r1")
+    vehicle(lluavd, b, "r2")
+    env = dict(os.environ, LLUAV_BROKER=b.url, LLUAV_PASSWORD=PASSWORD)
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == [
+        "r1 online disarmed",
+        "r2 online disarmed",
+        "up",
+        "-1 Vehicle is not flying",
+        "simulator",
+        "simulator",
+    ]

@@ -15,6 +15,11 @@ use serde_json::Value;
 
 const PASSWORD: &str = "s3cret";
 
+/// A vehicle without a password: allowed on the uplink only when asked.
+fn open_vehicle() -> Options {
+    Options::default().with_args(&["--allow-no-password"])
+}
+
 /// An operator subscribed to its answers from every vehicle.
 async fn operator(broker: &Mosquitto, client: &str) -> Mqtt {
     let mut m = Mqtt::connect(broker, client).await;
@@ -174,7 +179,7 @@ async fn wrong_passwords_are_throttled_per_client_id() {
 async fn a_repeated_id_is_answered_from_memory_and_never_run_twice() {
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir().expect("temp dir");
-    let daemon = vehicle(dir.path(), &broker, "v1", Options::default()).await;
+    let daemon = vehicle(dir.path(), &broker, "v1", open_vehicle()).await;
     let mut op = operator(&broker, "op").await;
     let syncs = |v: &Value| v["response"]["siyi"]["syncs"].as_u64().expect("syncs");
     let first = op.request("v1", "op", "s1", "siyi_sync").await;
@@ -223,7 +228,7 @@ async fn a_repeated_id_is_answered_from_memory_and_never_run_twice() {
 async fn unreadable_envelopes_are_answered_and_stray_topics_ignored() {
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir().expect("temp dir");
-    let options = Options::default().with_args(&["--max-message", "4096"]);
+    let options = open_vehicle().with_args(&["--max-message", "4096"]);
     let daemon = vehicle(dir.path(), &broker, "v1", options).await;
     let mut op = operator(&broker, "op").await;
     let long_id = "x".repeat(65);
@@ -323,7 +328,7 @@ async fn nothing_sent_while_the_vehicle_was_away_runs_late() {
             .await;
     }
     let dir = tempfile::tempdir().expect("temp dir");
-    let daemon = vehicle(dir.path(), &broker, "v1", Options::default()).await;
+    let daemon = vehicle(dir.path(), &broker, "v1", open_vehicle()).await;
     let now = op.request("v1", "op", "now", "siyi_sync").await;
     assert_eq!(now["response"]["siyi"]["syncs"], 1, "neither ran: {now}");
     assert!(
@@ -342,7 +347,7 @@ async fn nothing_sent_while_the_vehicle_was_away_runs_late() {
 async fn a_flood_from_one_client_is_bounded_and_every_request_answered() {
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir().expect("temp dir");
-    let daemon = vehicle(dir.path(), &broker, "v1", Options::default()).await;
+    let daemon = vehicle(dir.path(), &broker, "v1", open_vehicle()).await;
     let mut op = operator(&broker, "flood").await;
     let mut calm = operator(&broker, "calm").await;
     // save_param 1 writes and syncs a file: far slower to run than to
@@ -387,8 +392,8 @@ async fn a_flood_from_one_client_is_bounded_and_every_request_answered() {
 async fn status_is_retained_with_a_will_and_offline_on_a_clean_stop() {
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir().expect("temp dir");
-    let clean = vehicle(&dir.path().join("a"), &broker, "clean", Options::default()).await;
-    let crash = vehicle(&dir.path().join("b"), &broker, "crash", Options::default()).await;
+    let clean = vehicle(&dir.path().join("a"), &broker, "clean", open_vehicle()).await;
+    let crash = vehicle(&dir.path().join("b"), &broker, "crash", open_vehicle()).await;
     let mut watch = Mqtt::connect(&broker, "watch").await;
     watch.subscribe("lluav/+/status").await;
     let mut retained = HashMap::new();
@@ -468,7 +473,7 @@ async fn state_is_published_at_the_rate_and_at_once_on_a_change() {
         "quiet",
         Options {
             sim_speed: Some(10.0),
-            ..Options::default().with_args(&["--uplink-state-hz", "0"])
+            ..open_vehicle().with_args(&["--uplink-state-hz", "0"])
         },
     )
     .await;
@@ -521,7 +526,7 @@ async fn the_vehicle_comes_back_after_the_broker_restarts_and_websocket_never_wa
         dir.path(),
         &broker,
         "v1",
-        Options::default().with_args(&["--uplink-state-hz", "10"]),
+        open_vehicle().with_args(&["--uplink-state-hz", "10"]),
     )
     .await;
     let mut ws = Conn::connect(&daemon.url).await;
@@ -583,7 +588,7 @@ async fn mqtts_with_a_private_ca() {
     let ca = ca.to_str().expect("UTF-8 path");
     let trusting = Lluavd::start(
         &dir.path().join("a"),
-        &Options::default().with_args(&[
+        &open_vehicle().with_args(&[
             "--uplink",
             &broker.url,
             "--uplink-cafile",
@@ -594,7 +599,7 @@ async fn mqtts_with_a_private_ca() {
     );
     let system_roots = Lluavd::start(
         &dir.path().join("b"),
-        &Options::default().with_args(&["--uplink", &broker.url, "--vehicle-id", "plain"]),
+        &open_vehicle().with_args(&["--uplink", &broker.url, "--vehicle-id", "plain"]),
     );
     let mut ws = Conn::connect(&trusting.url).await;
     wait_uplink(&trusting, &mut ws, "up").await;
@@ -627,7 +632,7 @@ async fn mqtts_with_a_private_ca() {
     // A CA file that is not one is refused at start.
     let bad = Lluavd::try_start(
         &dir.path().join("c"),
-        &Options::default().with_args(&["--uplink", &broker.url, "--uplink-cafile", "/dev/null"]),
+        &open_vehicle().with_args(&["--uplink", &broker.url, "--uplink-cafile", "/dev/null"]),
         &[],
     );
     let Err((status, stderr)) = bad else {
@@ -650,7 +655,7 @@ async fn broker_credentials_from_flags_the_environment_and_a_password_file() {
     let dir = tempfile::tempdir().expect("temp dir");
     let by_flag = Lluavd::start(
         &dir.path().join("a"),
-        &Options::default().with_args(&[
+        &open_vehicle().with_args(&[
             "--uplink",
             &broker.url,
             "--uplink-user",
@@ -663,7 +668,7 @@ async fn broker_credentials_from_flags_the_environment_and_a_password_file() {
     );
     let wrong = Lluavd::start(
         &dir.path().join("b"),
-        &Options::default().with_args(&[
+        &open_vehicle().with_args(&[
             "--uplink",
             &broker.url,
             "--uplink-user",
@@ -899,7 +904,7 @@ fn bad_uplink_settings_are_refused_at_start() {
         &["--uplink", "mqtt://broker", "--uplink-state-hz", "11"],
         &["--uplink", "mqtt://broker", "--uplink-cafile", "ca.pem"],
     ] {
-        let started = Lluavd::try_start(&dir.path().join("x"), &Options::default().with_args(args), &[]);
+        let started = Lluavd::try_start(&dir.path().join("x"), &open_vehicle().with_args(args), &[]);
         let Err((status, stderr)) = started else {
             panic!("started with {args:?}")
         };
@@ -909,4 +914,116 @@ fn bad_uplink_settings_are_refused_at_start() {
             "{stderr}"
         );
     }
+    // No password: anyone who may publish to the vehicle's requests could
+    // fly it. Refused unless allowed, like listening beyond loopback.
+    for password in [None, Some(PASSWORD)] {
+        let options = Options {
+            password: password.map(str::to_owned),
+            ..Options::default().with_args(&["--uplink", "mqtt://127.0.0.1:1", "--vehicle-id", "v"])
+        };
+        match Lluavd::try_start(&dir.path().join("y"), &options, &[]) {
+            Ok(daemon) => {
+                assert!(password.is_some(), "started without a password");
+                assert_eq!(daemon.terminate().code(), Some(0));
+            }
+            Err((status, stderr)) => {
+                assert!(password.is_none(), "{stderr}");
+                assert_eq!(status.and_then(|s| s.code()), Some(2));
+                assert!(stderr.contains("--allow-no-password"), "{stderr}");
+            }
+        }
+    }
+}
+
+/// The README's Mosquitto ACL, as written.
+fn readme_acl() -> String {
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md")).expect("README");
+    let start = readme
+        .find("```text\n# /etc/mosquitto/lluav.acl")
+        .expect("the ACL block");
+    let block = &readme[start + "```text\n".len()..];
+    block[..block.find("```").expect("its end")].to_owned()
+}
+
+#[tokio::test]
+async fn the_readme_acl_lets_each_operator_and_vehicle_use_only_its_own_topics() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let acl = dir.path().join("lluav.acl");
+    std::fs::write(&acl, readme_acl()).expect("ACL written");
+    let broker = Mosquitto::with(&BrokerOptions {
+        users: vec![
+            ("alice".into(), "a-pw".into()),
+            ("mallory".into(), "m-pw".into()),
+            ("drone-1".into(), "d-pw".into()),
+        ],
+        extra: format!("acl_file {}\n", acl.display()),
+        ..BrokerOptions::default()
+    });
+    let daemon = Lluavd::start(
+        &dir.path().join("v"),
+        &Options::password(PASSWORD).with_args(&[
+            "--uplink",
+            &broker.url,
+            "--vehicle-id",
+            "drone-1",
+            "--uplink-user",
+            "drone-1",
+            "--uplink-password",
+            "d-pw",
+        ]),
+    );
+    let login = |user: &str, password: &str| {
+        let mut o = rumqttc::MqttOptions::new(user, "127.0.0.1", broker.port);
+        o.set_credentials(user, password);
+        o
+    };
+    let mut alice = Mqtt::with(login("alice", "a-pw")).await.expect("alice connects");
+    alice.subscribe("lluav/+/status").await;
+    loop {
+        let (_, status) = alice.json().await;
+        if status["online"] == true {
+            break;
+        }
+    }
+    alice.subscribe("lluav/+/res/alice").await;
+    let syncs = |v: &Value| v["response"]["siyi"]["syncs"].clone();
+    assert_eq!(
+        alice
+            .request("drone-1", "alice", "0", &format!("login {PASSWORD}"))
+            .await["response"]["ret"],
+        0
+    );
+    // Alice may not speak as anyone else, nor forge the vehicle's status;
+    // Mallory, with no lines in the ACL, may do nothing at all.
+    let as_bob = r#"{"id":"x","frame":"siyi_sync"}"#;
+    alice
+        .publish("lluav/drone-1/req/bob", as_bob, QoS::AtLeastOnce, false)
+        .await;
+    let forged = r#"{"vehicle":"drone-1","online":false}"#;
+    alice
+        .publish("lluav/drone-1/status", forged, QoS::AtLeastOnce, true)
+        .await;
+    let mallory = Mqtt::with(login("mallory", "m-pw"))
+        .await
+        .expect("mallory connects");
+    mallory
+        .publish("lluav/drone-1/req/mallory", as_bob, QoS::AtLeastOnce, false)
+        .await;
+    assert_eq!(
+        syncs(&alice.request("drone-1", "alice", "1", "siyi_sync").await),
+        1,
+        "nothing else ran"
+    );
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let again = alice.request("drone-1", "alice", "2", "siyi_sync").await;
+    assert_eq!(syncs(&again), 2, "nor later");
+    let mut later = Mqtt::with(login("alice", "a-pw")).await.expect("alice again");
+    later.subscribe("lluav/drone-1/status").await;
+    assert_eq!(
+        later.json().await.1["online"],
+        true,
+        "the retained status is the vehicle's"
+    );
+    assert_eq!(daemon.terminate().code(), Some(0));
 }

@@ -98,8 +98,12 @@ const STOP_GRACE: Duration = Duration::from_secs(3);
 /// How often idle sessions and old request ids are swept.
 const SWEEP: Duration = Duration::from_secs(1);
 
-/// Requests the connection's queue holds (answers, state, status).
-const QUEUE: usize = 1024;
+/// Requests the connection's queue holds (answers, acknowledgements,
+/// state, status): room for an answer and an acknowledgement to each of
+/// the messages a broker queues for one client (Mosquitto: 1000), so that
+/// a burst of QoS 1 requests is answered whole. (A broker sends that
+/// queue at once: it does not wait for acknowledgements.)
+const QUEUE: usize = 4096;
 
 /// The uplink, configured and not yet running.
 pub struct Uplink {

@@ -161,10 +161,9 @@ impl<S: Sessions> Shared<S> {
         self.acknowledge(publish);
     }
 
-    /// Acknowledges a QoS 1 message once its request is queued or answered:
-    /// the broker sends a client's messages only a window ahead of these
-    /// acknowledgements, so a flood of requests is paced by the vehicle
-    /// (and queued, then dropped, at the broker), not piled up here.
+    /// Acknowledges a QoS 1 message once its request is queued or answered,
+    /// not when it is read: a vehicle that stops before taking it leaves
+    /// it unacknowledged.
     fn acknowledge(&self, publish: &Publish) {
         if self.client.try_ack(publish).is_err() {
             // The connection's queue is full: wait for room elsewhere (at
