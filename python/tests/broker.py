@@ -37,7 +37,7 @@ class Mosquitto:
     def __init__(self, directory: Path, users: dict[str, str] | None = None, tls: tuple[Path, Path] | None = None):
         directory.mkdir(parents=True, exist_ok=True)
         self.port = free_port()
-        lines = [f"listener {self.port} 127.0.0.1", "persistence false", "log_dest stderr", "user root"]
+        lines = [f"listener {self.port} 127.0.0.1", "persistence false", "log_dest stderr", "set_tcp_nodelay true", "user root"]
         if tls is not None:
             lines += [f"certfile {tls[0]}", f"keyfile {tls[1]}"]
         if users:

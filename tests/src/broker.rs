@@ -73,7 +73,7 @@ impl Mosquitto {
         let dir = tempfile::tempdir().expect("temp dir");
         let port = free_port();
         let mut config = format!(
-            "listener {port} 127.0.0.1\npersistence false\nlog_dest stderr\n\
+            "listener {port} 127.0.0.1\npersistence false\nlog_dest stderr\nset_tcp_nodelay true\n\
              # Run as whoever started the test (root in CI), never as another user.\nuser root\n"
         );
         if options.tls {
@@ -255,6 +255,9 @@ impl Mqtt {
     /// Connects with `options`, or says why not.
     pub async fn with(options: MqttOptions) -> Result<Mqtt, String> {
         let (client, mut events) = AsyncClient::new(options, 10_000);
+        let mut network = rumqttc::NetworkOptions::new();
+        network.set_tcp_nodelay(true);
+        events.set_network_options(network);
         match tokio::time::timeout(WAIT, events.poll()).await {
             Ok(Ok(Event::Incoming(Packet::ConnAck(_)))) => {}
             other => return Err(format!("{other:?}")),
