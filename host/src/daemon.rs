@@ -175,21 +175,21 @@ impl<V: Vehicle> uplink::Sessions for Protocol<V> {
         Handler::closed(self, session);
     }
 
-    fn state(&self, out: &mut [u8]) -> Option<String> {
+    fn state(&self, reporter: &mut Session, out: &mut [u8]) -> Option<String> {
         self.locked(|server| {
             // The state topic is for whoever the broker lets read it: the
             // uplink asks in a session of its own, logged in with the
-            // vehicle's password (never a wrong one: nothing is throttled).
-            let mut session = server.open(None);
-            if let Some(password) = server.auth().password().map(str::to_owned) {
-                server.auth_mut().login(&mut session, &password, 0);
+            // vehicle's password (never a wrong one).
+            if !reporter.logged_in()
+                && let Some(password) = server.auth().password().map(str::to_owned)
+            {
+                let now = SystemClock.unix_ms();
+                server.auth_mut().login(reporter, &password, now);
             }
-            let reply = server
-                .handle(&mut session, Message::Text(b"state"), out)
+            server
+                .handle(reporter, Message::Text(b"state"), out)
                 .reply()
-                .map(str::to_owned);
-            server.close(&session);
-            reply
+                .map(str::to_owned)
         })
     }
 }

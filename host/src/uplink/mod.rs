@@ -76,8 +76,10 @@ pub trait Sessions: Send + Sync + 'static {
     /// `session` has ended.
     fn close(&self, session: Session);
 
-    /// The whole `state` response, as a logged-in session would get it.
-    fn state(&self, out: &mut [u8]) -> Option<String>;
+    /// The whole `state` response, asked in `reporter`: a session the
+    /// uplink keeps for its state topic, logged in here (with the
+    /// vehicle's own password) when it must be.
+    fn state(&self, reporter: &mut Session, out: &mut [u8]) -> Option<String>;
 }
 
 /// The uplink's bounds.

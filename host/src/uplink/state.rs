@@ -26,14 +26,15 @@ struct Salient {
 }
 
 impl Salient {
-    fn of(response: &str) -> Salient {
-        let value: Value = serde_json::from_str(response).unwrap_or_default();
+    /// What matters of a `state` response; `None` if it is not a success.
+    fn of(response: &str) -> Option<Salient> {
+        let value: Value = serde_json::from_str(response).ok()?;
         let state = &value["state"];
-        Salient {
+        (value["ret"] == 0).then(|| Salient {
             fsm: state["fsm"].as_str().map(str::to_owned),
             armed: state["armed"].as_bool(),
             link: state["link"].as_str().map(str::to_owned),
-        }
+        })
     }
 }
 
@@ -45,6 +46,8 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64) {
     let mut tick = interval(WATCH.min(period.unwrap_or(WATCH)));
     tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut out = vec![0u8; shared.response_capacity];
+    // No client id is empty: no client shares this session's throttle key.
+    let mut reporter = shared.sessions.open(shared.key(""));
     let mut last: Option<(Salient, Instant)> = None;
     loop {
         let now = tick.tick().await;
@@ -55,10 +58,14 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64) {
             last = None;
             continue;
         }
-        let Some(response) = shared.sessions.state(&mut out) else {
+        // A refusal (a login the throttle did not check, under attack) is
+        // no state: the last one stays retained.
+        let Some(response) = shared.sessions.state(&mut reporter, &mut out) else {
             continue;
         };
-        let salient = Salient::of(&response);
+        let Some(salient) = Salient::of(&response) else {
+            continue;
+        };
         // Half a watch early counts as on time: ticks jitter.
         let due = match &last {
             None => true,
