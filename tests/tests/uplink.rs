@@ -5,11 +5,12 @@
 //! --broker` command line. Needs `--features broker` (scripts/test-uplink.sh).
 
 use std::collections::{HashMap, HashSet};
+use std::os::unix::net::UnixDatagram;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use lluav_tests::broker::{BrokerOptions, Mosquitto, Mqtt, vehicle};
-use lluav_tests::{Conn, Lluavd, Options, WAIT, lluav_bin, test_ca};
+use lluav_tests::{Conn, Lluavd, Options, WAIT, lluav_bin, lluavd_bin, test_ca};
 use rumqttc::QoS;
 use serde_json::Value;
 
@@ -172,6 +173,40 @@ async fn wrong_passwords_are_throttled_per_client_id() {
     assert_eq!(locked["response"]["msg"], "Too many wrong passwords, retry later");
     let ok = op.request("v1", "op", "1", &format!("login {PASSWORD}")).await;
     assert_eq!(ok["response"]["ret"], 0);
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+#[tokio::test]
+async fn uplink_clients_and_websocket_addresses_share_one_guessing_budget() {
+    const THROTTLED: &str = "Too many wrong passwords, retry later";
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let options = Options::password(PASSWORD).with_args(&["--login-addresses", "4", "--login-rate", "1000"]);
+    let daemon = vehicle(dir.path(), &broker, "v1", options).await;
+    // Four client ids, four wrong passwords each: every record the login
+    // lockout keeps now matters.
+    for c in 0..4 {
+        let client = format!("eve{c}");
+        let mut eve = operator(&broker, &client).await;
+        for n in 0..4 {
+            let r = eve.request("v1", &client, &format!("w{n}"), "login guess").await;
+            assert_eq!(r["response"]["msg"], "Wrong password!", "{client}");
+        }
+        eve.close().await;
+    }
+    // So nobody new is checked: not an address over WebSocket, not another
+    // client id, even with the right password.
+    let mut ws = Conn::connect(&daemon.url).await;
+    assert_eq!(ws.request(&format!("login {PASSWORD}")).await["msg"], THROTTLED);
+    let mut op = operator(&broker, "op").await;
+    let r = op.request("v1", "op", "1", &format!("login {PASSWORD}")).await;
+    assert_eq!(r["response"]["msg"], THROTTLED);
+    // A client id with a record still is.
+    let mut eve = operator(&broker, "eve0").await;
+    let r = eve
+        .request("v1", "eve0", "ok", &format!("login {PASSWORD}"))
+        .await;
+    assert_eq!(r["response"]["ret"], 0, "{r}");
     assert_eq!(daemon.terminate().code(), Some(0));
 }
 
@@ -893,6 +928,62 @@ async fn idle_uplink_sessions_end_and_websocket_shows_the_uplink_off_without_one
     assert_eq!(ws.request("state").await["state"]["uplink"], "off");
     assert_eq!(daemon.terminate().code(), Some(0));
     assert_eq!(plain.terminate().code(), Some(0));
+}
+
+/// The `STATUS=` lines lluavd sends to `socket` until one is `want`.
+fn status_until(socket: &UnixDatagram, want: &str) -> Vec<String> {
+    socket.set_read_timeout(Some(WAIT)).expect("timeout set");
+    let mut seen = Vec::new();
+    let mut buf = [0u8; 4096];
+    loop {
+        let n = socket
+            .recv(&mut buf)
+            .unwrap_or_else(|e| panic!("no {want:?} ({e}); saw {seen:?}"));
+        let text = String::from_utf8_lossy(buf.get(..n).unwrap_or_default()).into_owned();
+        seen.extend(
+            text.lines()
+                .filter_map(|l| l.strip_prefix("STATUS="))
+                .map(str::to_owned),
+        );
+        if seen.last().is_some_and(|l| l == want) {
+            return seen;
+        }
+    }
+}
+
+#[tokio::test]
+async fn the_service_status_line_says_whether_the_uplink_is_up() {
+    let mut broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let socket_path = dir.path().join("notify");
+    let socket = UnixDatagram::bind(&socket_path).expect("notify socket");
+    let mut daemon = Command::new(lluavd_bin())
+        .args([
+            "--bind",
+            "127.0.0.1:0",
+            "--allow-no-password",
+            "--vehicle-id",
+            "v1",
+        ])
+        .args(["--uplink", &broker.url, "--data-dir"])
+        .arg(dir.path().join("data"))
+        .env("NOTIFY_SOCKET", &socket_path)
+        .env_remove("WATCHDOG_PID")
+        .env_remove("LLUAV_PASSWORD")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("lluavd spawns");
+    status_until(&socket, "0 sessions; simulated vehicle; uplink up");
+    broker.stop();
+    status_until(&socket, "0 sessions; simulated vehicle; uplink down");
+    broker.run();
+    status_until(&socket, "0 sessions; simulated vehicle; uplink up");
+    let _ = Command::new("kill")
+        .args(["-TERM", &daemon.id().to_string()])
+        .status();
+    assert_eq!(daemon.wait().expect("lluavd ends").code(), Some(0));
 }
 
 #[test]
