@@ -136,6 +136,14 @@ class _Link:
             self._connected.set()
             client.disconnect()
             return
+        # Clean session: the broker kept nothing of the last connection, and
+        # neither may paho. What it still holds (a request published as the
+        # link went, or one whose PUBACK never came) belongs to a caller
+        # already told it failed; paho would send it again right after this
+        # callback, and the vehicle would run it late.
+        with client._out_message_mutex:
+            client._out_messages.clear()
+            client._inflight_messages = 0
         with self._lock:
             self._down = None
         # Clean session: subscribe on every connection.

@@ -32,12 +32,25 @@ def free_port() -> int:
 
 class Mosquitto:
     """One running broker. ``users`` {name: password} turn anonymous access
-    off; ``tls`` (certificate, key) serves mqtts:// instead."""
+    off; ``tls`` (certificate, key) serves mqtts:// instead; ``port`` (a
+    free one by default) starts it again where a stopped one listened."""
 
-    def __init__(self, directory: Path, users: dict[str, str] | None = None, tls: tuple[Path, Path] | None = None):
+    def __init__(
+        self,
+        directory: Path,
+        users: dict[str, str] | None = None,
+        tls: tuple[Path, Path] | None = None,
+        port: int | None = None,
+    ):
         directory.mkdir(parents=True, exist_ok=True)
-        self.port = free_port()
-        lines = [f"listener {self.port} 127.0.0.1", "persistence false", "log_dest stderr", "set_tcp_nodelay true", "user root"]
+        self.port = port or free_port()
+        lines = [
+            f"listener {self.port} 127.0.0.1",
+            "persistence false",
+            "log_dest stderr",
+            "set_tcp_nodelay true",
+            "user root",
+        ]
         if tls is not None:
             lines += [f"certfile {tls[0]}", f"keyfile {tls[1]}"]
         if users:

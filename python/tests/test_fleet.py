@@ -7,15 +7,19 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import json
 import os
 import re
+import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Callable
 
+import paho.mqtt.client as mqtt
 import pytest
 from broker import Mosquitto, free_port
 from conftest import ROOT
@@ -135,6 +139,48 @@ def test_the_listing_shows_online_and_offline_vehicles_with_their_state(lluavd, 
         assert time.monotonic() - started >= 0.5
         # The connection is still good.
         assert f.vehicle("up1", password=PASSWORD).state()["ret"] == 0
+
+
+def test_a_request_lost_with_the_link_is_never_sent_after_a_reconnection(lluavd, broker):
+    """A request whose PUBACK never came fails for its caller, and the fleet
+    does not send it again once it is back: the vehicle would run it late,
+    with nobody waiting for it."""
+    b = broker()
+    vehicle(lluavd, b, "v1")
+    with lluav.Fleet(b.url, timeout=1) as f:
+        v = f.vehicle("v1", password=PASSWORD)
+        # Frozen: TCP takes the request, the broker never acknowledges it.
+        b.proc.send_signal(signal.SIGSTOP)
+        with pytest.raises(lluav.ConnectionError, match="v1 did not answer"):
+            v.siyi_sync()
+        b.proc.kill()
+        b.proc.wait()
+        again = broker(port=b.port)
+        # Subscribed before the fleet can be back (paho waits 1 s at least).
+        seen: list[str] = []
+        granted = threading.Event()
+        spy = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="spy")
+        spy.on_message = lambda _c, _u, m: seen.append(json.loads(m.payload)["frame"])
+        spy.on_subscribe = lambda *_: granted.set()
+        spy.connect("127.0.0.1", again.port)
+        spy.subscribe("lluav/+/req/#", qos=1)
+        spy.loop_start()
+        try:
+            assert granted.wait(5)
+            deadline = time.monotonic() + 30
+            while True:
+                try:
+                    assert v.ver()["ret"] == 0
+                    break
+                except lluav.ConnectionError:
+                    assert time.monotonic() < deadline, "the fleet never came back"
+                    time.sleep(0.1)
+            time.sleep(0.2)
+            assert "siyi_sync" not in seen, seen
+            assert v.siyi_sync()["siyi"]["syncs"] == 1, "the lost request never ran"
+        finally:
+            spy.loop_stop()
+            spy.disconnect()
 
 
 def test_async_fleet_commands_three_vehicles_at_once(lluavd, broker):
