@@ -15,9 +15,8 @@
 
 use std::future::{Future, poll_fn};
 use std::net::SocketAddr;
-use std::pin::{Pin, pin};
+use std::pin::Pin;
 use std::sync::Arc;
-use std::task::Poll;
 
 use futures_util::FutureExt;
 use lluav_core::websocket::{Opcode, close_reply};
@@ -33,7 +32,7 @@ use super::reader::{Event as Received, READ_CHUNK, Reader};
 use super::report::{Offence, Reports};
 use super::slots::Held;
 use super::woken::Woken;
-use super::{Handler, LINGER, Limits};
+use super::{Handler, LINGER, Limits, wire};
 
 /// Frames a connection answers at shutdown if they had already arrived:
 /// enough for any honest pipeline, bounded so that a client streaming
@@ -147,18 +146,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Io<S> {
             ..
         } = self;
         poll_fn(|cx| {
-            let buf = reader.buffer();
-            let room = buf.capacity() - buf.len();
-            let polled = pin!(stream.read_buf(buf)).poll(cx);
-            match &polled {
-                Poll::Ready(Ok(n)) => *drained = *n < room,
-                Poll::Ready(Err(_)) => {}
-                Poll::Pending => {
-                    reader.release();
-                    if outbox.is_empty() {
-                        buffers::recycle(std::mem::take(outbox));
-                    }
-                }
+            let polled = wire::poll_read(stream, reader, cx, drained);
+            if polled.is_pending() && outbox.is_empty() {
+                buffers::recycle(std::mem::take(outbox));
             }
             polled
         })
@@ -185,19 +175,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Io<S> {
             return true;
         }
         self.queued = 0;
-        let Io { stream, outbox, .. } = self;
-        let mut write = pin!(async {
-            stream.write_all(outbox).await?;
-            stream.flush().await
-        });
-        // Usually the socket takes it all at once: then no timer is made
-        // (a timer reads the clock and the runtime's handle).
-        let written = match write.as_mut().now_or_never() {
-            Some(done) => Ok(done),
-            None => timeout(limits.io_timeout, write).await,
-        };
-        outbox.clear();
-        matches!(written, Ok(Ok(())))
+        wire::write(&mut self.stream, &mut self.outbox, limits.io_timeout).await
     }
 
     /// Writes the queued frames if there are enough of them, whether or

@@ -10,8 +10,8 @@
 //!   plain HTTP request goes to the daemon's [`Http`] handler;
 //! - [`connection`]: one session after its `101`, the [`Connection`]:
 //!   WebSocket frames (the core's [`lluav_core::websocket`] codec) read
-//!   and assembled by a [`reader`], written by [`frame`],
-//!   replies written into [`buffers`] lent per message;
+//!   and assembled by a [`reader`], written by [`frame`] (the socket
+//!   I/O: [`wire`]), replies written into [`buffers`] lent per message;
 //! - [`tls`]: `wss://` with rustls;
 //! - [`report`]: log lines about misbehaving clients, rate-limited.
 //!
@@ -30,6 +30,7 @@ pub mod reader;
 pub mod report;
 pub mod slots;
 pub mod tls;
+pub mod wire;
 pub mod woken;
 
 use std::future::Future;
