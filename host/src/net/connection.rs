@@ -7,7 +7,9 @@
 //! with 1009 (through the core's policy, [`Message::Oversized`]) as soon
 //! as the frame header announcing it arrives; a binary message goes to the
 //! handler (the core closes with 1003); any other protocol violation closes
-//! with 1002. Pings are answered with pongs in turn with the replies.
+//! with 1002. Pings are answered with pongs in turn with the replies, and
+//! at once while a command is pending ([`super::waiting`]: the session
+//! reads on meanwhile, later requests wait in a bounded backlog).
 //!
 //! An idle session holds no buffers: the read buffer and the queue of
 //! replies are freed while it waits, and the buffer the handler writes a
@@ -31,6 +33,7 @@ use super::frame;
 use super::reader::{Event as Received, READ_CHUNK, Reader};
 use super::report::{Offence, Reports};
 use super::slots::Held;
+use super::waiting::{self, Backlog, Ended, Queued, ReadOn, Waited, Wire};
 use super::woken::Woken;
 use super::{Handler, LINGER, Limits, wire};
 
@@ -68,8 +71,8 @@ enum End {
 
 /// What the read loop saw next.
 enum Next {
-    /// What the frames read so far make.
-    Frame(Received),
+    /// A frame to act on.
+    Frame(Input),
     /// The peer closed the TCP stream, or replies could not be written.
     Ended,
     /// Nothing arrived within the idle timeout.
@@ -78,6 +81,14 @@ enum Next {
     LoginTimeout,
     /// Ended from outside.
     End(End),
+}
+
+/// A frame to act on.
+enum Input {
+    /// What the frames read so far make.
+    Read(Received),
+    /// A frame read while a command was pending, its turn come.
+    Queued(Queued),
 }
 
 /// What the connection does after a frame.
@@ -90,6 +101,19 @@ enum Flow {
     Close(CloseCode, &'static str),
     /// The peer sent its close: answer it with this code and stop.
     Answer(u16),
+    /// The peer's close was answered already (while a command was
+    /// pending): stop.
+    Answered,
+}
+
+/// Where the message handed to the handler comes from.
+enum Source<'q> {
+    /// The reader's last [`Received::Message`].
+    Reader,
+    /// The reader's last [`Received::Oversized`].
+    Oversized,
+    /// The backlog.
+    Queued(Message<'q>),
 }
 
 /// The one timer of a session: the idle timeout, and the login deadline
@@ -214,6 +238,8 @@ pub struct Connection<'h, S, H: Handler> {
     slot: Option<Held>,
     admitted: bool,
     reports: &'h Reports,
+    /// Frames read while a command was pending, to handle in turn.
+    backlog: Backlog,
 }
 
 /// What a session is served with besides its stream.
@@ -260,6 +286,7 @@ where
             slot,
             admitted: false,
             reports: cx.reports,
+            backlog: Backlog::default(),
         }
     }
 
@@ -290,9 +317,11 @@ where
         debug!(peer = %self.peer, "connected");
         loop {
             let flow = match self.next(ended.as_mut(), &mut timer).await {
-                Next::Frame(event) => {
+                Next::Frame(input) => {
+                    let flow = self.input(input).await;
+                    // Read once the frame is answered: a pending command
+                    // is not idleness.
                     timer.last_frame = Instant::now();
-                    let flow = self.event(event).await;
                     if self.check_admitted() {
                         timer.login_deadline = None;
                     }
@@ -335,8 +364,12 @@ where
     async fn next(&mut self, mut ended: Pin<&mut impl Future<Output = End>>, timer: &mut Timer) -> Next {
         let limits = self.limits;
         loop {
+            // What was read while a command was pending came first.
+            if let Some(queued) = self.backlog.pop() {
+                return Next::Frame(Input::Queued(queued));
+            }
             if let Some(event) = self.io.reader.next_event() {
-                return Next::Frame(event);
+                return Next::Frame(Input::Read(event));
             }
             // A pipelining client's next requests may be here already:
             // their replies then go out together.
@@ -366,14 +399,25 @@ where
         }
     }
 
-    /// Acts on one event of the frames received.
-    async fn event(&mut self, event: Received) -> Flow {
+    /// Acts on a frame.
+    async fn input(&mut self, input: Input) -> Flow {
         if self.io.outbox.capacity() == 0 {
             self.io.outbox = buffers::spare(READ_CHUNK);
         }
+        match input {
+            Input::Read(event) | Input::Queued(Queued::Stop(event)) => self.event(event).await,
+            Input::Queued(Queued::Text(bytes)) => self.message(Source::Queued(Message::Text(&bytes))).await,
+            Input::Queued(Queued::Binary(bytes)) => {
+                self.message(Source::Queued(Message::Binary(&bytes))).await
+            }
+        }
+    }
+
+    /// Acts on one event of the frames received.
+    async fn event(&mut self, event: Received) -> Flow {
         match event {
-            Received::Message => self.message(false).await,
-            Received::Oversized => self.message(true).await,
+            Received::Message => self.message(Source::Reader).await,
+            Received::Oversized => self.message(Source::Oversized).await,
             Received::InvalidText => Flow::Close(CloseCode::InvalidPayload, ""),
             Received::Control(Opcode::Ping) => {
                 let Io { reader, outbox, .. } = &mut self.io;
@@ -390,29 +434,74 @@ where
         }
     }
 
-    /// Hands a message (or, `oversized`, the news of one) to the handler
-    /// and queues its reply.
-    async fn message(&mut self, oversized: bool) -> Flow {
+    /// Hands a message (or the news of an oversized one) to the handler
+    /// and queues its reply. While the handler waits, the session reads
+    /// on ([`waiting`]).
+    async fn message(&mut self, source: Source<'_>) -> Flow {
         let mut out = self.buffers.lend();
-        let message = if oversized {
-            Message::Oversized
-        } else {
-            self.io.reader.message()
+        let Io {
+            stream,
+            reader,
+            outbox,
+            queued,
+            drained,
+        } = &mut self.io;
+        let (message, read_on) = match source {
+            Source::Reader => (reader.message(), Some(ReadOn::After(reader.unparsed()))),
+            // Not a message the reader moved past: the handler answers it
+            // at once (the core's close policy), nothing is read meanwhile.
+            Source::Oversized => (Message::Oversized, None),
+            Source::Queued(message) => (message, Some(ReadOn::Into(reader))),
         };
-        let outcome = self.handler.handle(&mut self.session, message, &mut out).await;
-        if let Outcome::Pending(ticket, _) = outcome {
-            // A handler must wait for its backend; this one broke that promise.
-            warn!(peer = %self.peer, ?ticket, "handler answered Pending; closing");
-            return Flow::Close(CloseCode::InternalError, "");
-        }
-        let code = outcome.close_code();
-        if let Some(text) = outcome.reply() {
+        let handling = self.handler.handle(&mut self.session, message, &mut out);
+        let wire = Wire {
+            stream,
+            outbox: &mut *outbox,
+        };
+        let (outcome, waited) =
+            waiting::answer(handling, read_on, wire, &mut self.backlog, &self.limits).await;
+        let (ended, next_reader) = match waited {
+            Some(Waited { reader, ended }) => {
+                // The wait wrote what was queued, and read on.
+                (*queued, *drained) = (0, false);
+                (ended, reader)
+            }
+            None => (Ended::Open, None),
+        };
+        let code = match outcome {
+            Outcome::Pending(ticket, _) => {
+                // A handler must wait for its backend; this one broke that promise.
+                warn!(peer = %self.peer, ?ticket, "handler answered Pending; closing");
+                Some(CloseCode::InternalError)
+            }
+            _ => outcome.close_code(),
+        };
+        if let Some(text) = outcome.reply()
+            && ended == Ended::Open
+        {
             // Queued, not written: the read loop writes once no further
             // request is already waiting, and a close writes first.
-            frame::write(&mut self.io.outbox, Opcode::Text, text.as_bytes());
-            self.io.queued += 1;
+            frame::write(outbox, Opcode::Text, text.as_bytes());
+            *queued += 1;
         }
         drop(out);
+        if let Some(next) = next_reader {
+            self.io.reader.take_over(next);
+        }
+        self.answered(code, ended).await
+    }
+
+    /// What follows a message's answer: `code` is the handler's close
+    /// code, `ended` how a wait for the answer ended.
+    async fn answered(&mut self, code: Option<CloseCode>, ended: Ended) -> Flow {
+        match ended {
+            Ended::Open => {}
+            Ended::Closed => return Flow::Answered,
+            Ended::Broken => {
+                debug!(peer = %self.peer, "peer does not take pongs; dropping it");
+                return Flow::Done;
+            }
+        }
         if code == Some(CloseCode::Policy) {
             self.reports.note(self.peer.ip(), Offence::WrongPasswords);
         }
@@ -437,10 +526,14 @@ where
     /// short wait lets the reactor report bytes already in the socket.
     async fn drain(&mut self) -> Flow {
         for _ in 0..MAX_FRAMES_AFTER_SHUTDOWN {
-            let Ok(Some(event)) = timeout(IN_FLIGHT_WAIT, self.io.receive()).await else {
-                break;
+            let input = match self.backlog.pop() {
+                Some(queued) => Input::Queued(queued),
+                None => match timeout(IN_FLIGHT_WAIT, self.io.receive()).await {
+                    Ok(Some(event)) => Input::Read(event),
+                    _ => break,
+                },
             };
-            match self.event(event).await {
+            match self.input(input).await {
                 Flow::Continue => {}
                 other => return other,
             }
@@ -454,6 +547,7 @@ where
         let io = &mut self.io;
         match flow {
             Flow::Continue | Flow::Done => return,
+            Flow::Answered => {}
             Flow::Close(code, reason) => {
                 // Offenders are reported (once a minute) where the offence
                 // is seen; a line per close would let a client flood the log.

@@ -12,6 +12,7 @@
 //!   WebSocket frames (the core's [`lluav_core::websocket`] codec) read
 //!   and assembled by a [`reader`], written by [`frame`] (the socket
 //!   I/O: [`wire`]), replies written into [`buffers`] lent per message;
+//!   while a command is pending the session reads on ([`waiting`]);
 //! - [`tls`]: `wss://` with rustls;
 //! - [`report`]: log lines about misbehaving clients, rate-limited.
 //!
@@ -30,6 +31,7 @@ pub mod reader;
 pub mod report;
 pub mod slots;
 pub mod tls;
+pub mod waiting;
 pub mod wire;
 pub mod woken;
 
@@ -65,8 +67,9 @@ pub trait Handler: Send + Sync + 'static {
     /// Handles one message; the reply may borrow from `message` or `out`.
     /// `out` holds [`Limits::response_capacity`] bytes. The answer may take
     /// a while (an autopilot's acknowledgement); other connections are
-    /// served meanwhile, and this one's later messages wait their turn.
-    /// Never [`Outcome::Pending`].
+    /// served meanwhile, and this one answers pings and reads on, its later
+    /// messages waiting their turn ([`waiting`]). The future is run to its
+    /// end even if the peer closes meanwhile. Never [`Outcome::Pending`].
     fn handle<'o>(
         &'o self,
         session: &'o mut Self::Session,

@@ -113,6 +113,21 @@ impl Reader {
             .message(self.buf.get(self.start..end).unwrap_or_default())
     }
 
+    /// The bytes read and not parsed yet. After an [`Event::Message`] they
+    /// begin with a frame's header: a new reader given them reads on from
+    /// where this one stands, while this one's message is still in use.
+    pub fn unparsed(&self) -> &[u8] {
+        self.buf.get(self.pos..).unwrap_or_default()
+    }
+
+    /// Goes on as `next`, a reader that read on from [`Reader::unparsed`]
+    /// while this one's last message was in use; this one's buffer is
+    /// recycled.
+    pub fn take_over(&mut self, next: Reader) {
+        let old = std::mem::replace(self, next);
+        buffers::recycle(old.buf);
+    }
+
     /// The payload of the control frame of the last [`Event::Control`].
     pub fn control(&self) -> &[u8] {
         self.buf.get(self.control.clone()).unwrap_or_default()

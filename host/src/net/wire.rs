@@ -1,5 +1,6 @@
 //! A session's bytes on the socket: reads into its [`Reader`], writes of
-//! its queued frames, for the read loop ([`super::connection`]).
+//! its queued frames. Shared by the read loop ([`super::connection`]) and
+//! the reading done while a command is pending ([`super::waiting`]).
 
 use std::future::Future;
 use std::pin::pin;
