@@ -17,7 +17,7 @@
 
 use std::future::{Future, poll_fn};
 use std::net::SocketAddr;
-use std::pin::Pin;
+use std::pin::{Pin, pin};
 use std::sync::Arc;
 
 use futures_util::FutureExt;
@@ -453,41 +453,32 @@ where
             Source::Oversized => (Message::Oversized, None),
             Source::Queued(message) => (message, Some(ReadOn::Into(reader))),
         };
-        let handling = self.handler.handle(&mut self.session, message, &mut out);
-        let wire = Wire {
-            stream,
-            outbox: &mut *outbox,
-        };
-        let (outcome, waited) =
-            waiting::answer(handling, read_on, wire, &mut self.backlog, &self.limits).await;
-        let (ended, next_reader) = match waited {
-            Some(Waited { reader, ended }) => {
+        let (code, waited) = {
+            // Pinned here, in the one place it lives while it runs.
+            let handling = pin!(self.handler.handle(&mut self.session, message, &mut out));
+            let wire = Wire {
+                stream,
+                outbox: &mut *outbox,
+            };
+            let (outcome, waited) =
+                waiting::answer(handling, read_on, wire, &mut self.backlog, &self.limits).await;
+            if waited.is_some() {
                 // The wait wrote what was queued, and read on.
                 (*queued, *drained) = (0, false);
-                (ended, reader)
             }
-            None => (Ended::Open, None),
+            let ended = waited.as_ref().map_or(Ended::Open, |w| w.ended);
+            (queue_reply(&outcome, ended, outbox, queued, self.peer), waited)
         };
-        let code = match outcome {
-            Outcome::Pending(ticket, _) => {
-                // A handler must wait for its backend; this one broke that promise.
-                warn!(peer = %self.peer, ?ticket, "handler answered Pending; closing");
-                Some(CloseCode::InternalError)
-            }
-            _ => outcome.close_code(),
-        };
-        if let Some(text) = outcome.reply()
-            && ended == Ended::Open
-        {
-            // Queued, not written: the read loop writes once no further
-            // request is already waiting, and a close writes first.
-            frame::write(outbox, Opcode::Text, text.as_bytes());
-            *queued += 1;
-        }
         drop(out);
-        if let Some(next) = next_reader {
-            self.io.reader.take_over(next);
-        }
+        let ended = match waited {
+            Some(Waited { reader, ended }) => {
+                if let Some(next) = reader {
+                    self.io.reader.take_over(next);
+                }
+                ended
+            }
+            None => Ended::Open,
+        };
         self.answered(code, ended).await
     }
 
@@ -577,4 +568,29 @@ where
         }
         io.linger().await;
     }
+}
+
+/// Queues the reply of `outcome` in `outbox` (unless the peer closed
+/// while it was awaited, `ended`) and gives the close code that follows.
+fn queue_reply(
+    outcome: &Outcome<'_>,
+    ended: Ended,
+    outbox: &mut Vec<u8>,
+    queued: &mut usize,
+    peer: SocketAddr,
+) -> Option<CloseCode> {
+    if let Outcome::Pending(ticket, _) = outcome {
+        // A handler must wait for its backend; this one broke that promise.
+        warn!(%peer, ?ticket, "handler answered Pending; closing");
+        return Some(CloseCode::InternalError);
+    }
+    if let Some(text) = outcome.reply()
+        && ended == Ended::Open
+    {
+        // Queued, not written: the read loop writes once no further
+        // request is already waiting, and a close writes first.
+        frame::write(outbox, Opcode::Text, text.as_bytes());
+        *queued += 1;
+    }
+    outcome.close_code()
 }

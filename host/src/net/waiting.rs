@@ -23,7 +23,7 @@
 
 use std::collections::VecDeque;
 use std::future::{Future, poll_fn};
-use std::pin::{Pin, pin};
+use std::pin::Pin;
 use std::task::Poll;
 
 use lluav_core::Message;
@@ -146,9 +146,11 @@ pub struct Wire<'w, S> {
 /// Awaits `handling`, the handler's answer to a message. If it is not
 /// ready at once, the session reads on meanwhile as the module docs say
 /// (unless `read_on` is `None`: the message is not one the reader moved
-/// past), and [`Waited`] says what came of it.
+/// past), and [`Waited`] says what came of it. `handling` is pinned by the
+/// caller: moved in here, it would take its room twice in the session's
+/// future, and so in the memory of every session, idle or not.
 pub async fn answer<F, S>(
-    handling: F,
+    mut handling: Pin<&mut F>,
     read_on: Option<ReadOn<'_>>,
     wire: Wire<'_, S>,
     backlog: &mut Backlog,
@@ -158,7 +160,6 @@ where
     F: Future,
     S: AsyncRead + AsyncWrite + Unpin,
 {
-    let mut handling = pin!(handling);
     // The one cost a message answered at once pays: this poll.
     let polled = poll_fn(|cx| Poll::Ready(handling.as_mut().poll(cx))).await;
     match (polled, read_on) {
