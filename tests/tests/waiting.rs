@@ -19,7 +19,8 @@ use lluav_tests::{Conn, Received, WAIT};
 use tokio::net::{TcpListener, TcpSocket};
 use tokio::sync::{Semaphore, oneshot};
 use tokio_tungstenite::tungstenite::Message;
-use tokio_tungstenite::tungstenite::protocol::frame::coding::Data;
+use tokio_tungstenite::tungstenite::protocol::frame::Frame;
+use tokio_tungstenite::tungstenite::protocol::frame::coding::{Data, OpCode};
 
 /// Echoes every text message and otherwise follows the core's close
 /// policy (binary 1003, invalid text 1007, oversized 1009), as lluavd's
@@ -233,22 +234,12 @@ async fn a_ping_behind_the_longest_message_is_reached_but_not_one_behind_more() 
     assert_eq!(c.recv().await, Received::Pong(b"2".to_vec()));
 }
 
-#[tokio::test]
-async fn a_message_that_ends_the_session_takes_its_turn_after_the_wait() {
-    let s = server(Limits::default()).await;
-    let mut c = Conn::connect(&s.url).await;
-    c.send("wait").await;
-    c.send("before").await;
-    c.send_raw(Message::Binary(vec![1, 2, 3].into())).await;
-    c.send("after").await;
-    s.handler.release.add_permits(1);
-    assert_eq!(c.recv().await, text("wait"));
-    assert_eq!(c.recv().await, text("before"));
-    assert_eq!(c.close_code().await, Some(1003));
-}
-
-#[tokio::test]
-async fn an_oversized_message_read_during_a_wait_closes_at_its_turn() {
+/// `bad`, sent behind a waiting command and a request, closes the session
+/// with `code` once the command and the request are answered. A message
+/// the handler refuses (`read_past`) is a message like any other while
+/// the command waits: the ping behind it is answered; behind one the
+/// reader fails, nothing is read.
+async fn ends_the_session_at_its_turn(bad: Message, read_past: bool, code: u16) {
     let limits = Limits {
         max_message: 8 * 1024,
         ..Limits::default()
@@ -257,31 +248,37 @@ async fn an_oversized_message_read_during_a_wait_closes_at_its_turn() {
     let mut c = Conn::connect(&s.url).await;
     c.send("wait").await;
     c.send("before").await;
-    c.send(&"x".repeat(limits.max_message + 1)).await;
-    // Not read on past it: the session ends there.
+    c.send_raw(bad).await;
+    c.send("after").await;
     ping(&mut c, b"after").await;
-    nothing_arrives(&mut c).await;
+    if read_past {
+        assert_eq!(c.recv().await, Received::Pong(b"after".to_vec()));
+    } else {
+        nothing_arrives(&mut c).await;
+    }
     s.handler.release.add_permits(1);
     assert_eq!(c.recv().await, text("wait"));
     assert_eq!(c.recv().await, text("before"));
-    assert_eq!(c.close_code().await, Some(1009));
+    assert_eq!(c.close_code().await, Some(code));
+}
+
+#[tokio::test]
+async fn a_binary_message_read_during_a_wait_closes_at_its_turn() {
+    // The handler's close (the core's policy), not the reader's.
+    ends_the_session_at_its_turn(Message::Binary(vec![1, 2, 3].into()), true, 1003).await;
+}
+
+#[tokio::test]
+async fn an_oversized_message_read_during_a_wait_closes_at_its_turn() {
+    ends_the_session_at_its_turn(Message::text("x".repeat(8 * 1024 + 1)), false, 1009).await;
 }
 
 #[tokio::test]
 async fn invalid_text_read_during_a_wait_closes_at_its_turn() {
-    let s = server(Limits::default()).await;
-    let mut c = Conn::connect(&s.url).await;
-    c.send("wait").await;
-    c.send("before").await;
     // The first piece of a message that can never be valid UTF-8: the
     // reader fails it there, before its end.
-    c.send_text_frame(b"ok \xff", Data::Text, false).await;
-    ping(&mut c, b"after").await;
-    nothing_arrives(&mut c).await;
-    s.handler.release.add_permits(1);
-    assert_eq!(c.recv().await, text("wait"));
-    assert_eq!(c.recv().await, text("before"));
-    assert_eq!(c.close_code().await, Some(1007));
+    let piece = Frame::message(b"ok \xff".to_vec(), OpCode::Data(Data::Text), false);
+    ends_the_session_at_its_turn(Message::Frame(piece), false, 1007).await;
 }
 
 #[tokio::test]
