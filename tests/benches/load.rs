@@ -4,7 +4,7 @@
 //! ```text
 //! cargo bench -p lluav-tests --bench load -- [--connections 1,10,100,1000]
 //!     [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T]
-//!     [--echo-default-buffers] [--lluavd-echo]
+//!     [--echo-default-buffers] [--lluavd-echo] [--baseline-lluavd PATH]
 //! ```
 //!
 //! For each connection count C, C WebSocket connections each send M
@@ -32,7 +32,9 @@
 //! to 64 KiB (`--echo-default-buffers`: tungstenite's defaults for the
 //! echo server). `--lluavd-echo` adds `lluavd --echo`, lluavd's own
 //! connection code with its echo handler, which splits lluavd's cost into
-//! transport and protocol.
+//! transport and protocol. `--baseline-lluavd PATH` loads another lluavd
+//! build too (and its `--echo`, with `--lluavd-echo`) in the same rounds,
+//! and the summary compares this build with it.
 //!
 //! The summary at the end is a Markdown table for BENCHMARKS.md.
 
@@ -168,8 +170,8 @@ impl Args {
                 other => {
                     return Err(BenchError::Usage(format!(
                         "unknown argument {other}; \
-                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers] [--lluavd-echo] \
-                         [--attacks] [--tls] [--guesses [--baseline-lluavd PATH]] [--seconds S]"
+                         [--connections 1,10,100,1000] [--messages M | --total N] [--rounds R] [--idle N] [--client-threads T] [--echo-default-buffers] [--lluavd-echo] [--baseline-lluavd PATH] \
+                         [--attacks] [--tls] [--guesses] [--seconds S]"
                     )));
                 }
             }
@@ -225,29 +227,42 @@ struct Servers {
     echo: EchoServer,
     lluavd: Lluavd,
     lluavd_echo: Option<Lluavd>,
+    /// `--baseline-lluavd`: that build, and its `--echo` with `--lluavd-echo`.
+    baseline: Option<Lluavd>,
+    baseline_echo: Option<Lluavd>,
     _dir: tempfile::TempDir,
 }
 
 impl Servers {
     fn start(max_connections: usize, args: &Args) -> Result<Servers, BenchError> {
         let dir = tempfile::tempdir().map_err(|e| BenchError::Process(format!("temp dir: {e}")))?;
-        let options = Options::password(PASSWORD)
-            .per_ip(max_connections)
-            .with_args(&["--max-connections", &max_connections.to_string()]);
-        let lluavd = Lluavd::start(dir.path(), &options);
-        let lluavd_echo = args.lluavd_echo.then(|| {
-            let options = Options::default().per_ip(max_connections).with_args(&[
-                "--echo",
-                "--max-connections",
-                &max_connections.to_string(),
-            ]);
-            Lluavd::start(&dir.path().join("echo"), &options)
-        });
+        let max = max_connections.to_string();
+        let daemon = |binary: Option<&std::path::Path>, echo: bool, sub: &str| {
+            let options = if echo {
+                Options::default().with_args(&["--echo", "--max-connections", &max])
+            } else {
+                Options::password(PASSWORD).with_args(&["--max-connections", &max])
+            };
+            let options = Options {
+                binary: binary.map(Into::into),
+                ..options.per_ip(max_connections)
+            };
+            Lluavd::start(&dir.path().join(sub), &options)
+        };
+        let lluavd = daemon(None, false, "lluavd");
+        let lluavd_echo = args.lluavd_echo.then(|| daemon(None, true, "echo"));
+        let base = args.scenarios.baseline.as_deref();
+        let baseline = base.map(|b| daemon(Some(b), false, "baseline"));
+        let baseline_echo = base
+            .filter(|_| args.lluavd_echo)
+            .map(|b| daemon(Some(b), true, "baseline-echo"));
         let echo = EchoServer::start(args.echo_default_buffers)?;
         Ok(Servers {
             echo,
             lluavd,
             lluavd_echo,
+            baseline,
+            baseline_echo,
             _dir: dir,
         })
     }
@@ -260,6 +275,8 @@ struct Row {
     echo: Stats,
     lluavd: Stats,
     lluavd_echo: Option<Stats>,
+    baseline: Option<Stats>,
+    baseline_echo: Option<Stats>,
 }
 
 fn bench(args: &Args) -> Result<(), BenchError> {
@@ -311,25 +328,31 @@ fn bench(args: &Args) -> Result<(), BenchError> {
     let mut rows = Vec::new();
     for &c in &args.connections {
         let m = args.messages_for(c);
-        let (mut echo, mut lluavd, mut lluavd_echo) = (None::<Stats>, None::<Stats>, None::<Stats>);
+        // Every server this run loads, with its totals over the rounds.
+        let mut loads: Vec<(Target, &str, u32, Option<Stats>)> = vec![
+            (Target::Echo, &echo_url, echo_pid, None),
+            (Target::Lluavd, &lluavd_url, lluavd_pid, None),
+        ];
+        let optional = [
+            (Target::LluavdEcho, &servers.lluavd_echo),
+            (Target::Baseline, &servers.baseline),
+            (Target::BaselineEcho, &servers.baseline_echo),
+        ];
+        for (target, daemon) in optional {
+            if let Some(d) = daemon {
+                loads.push((target, &d.url, d.pid(), None));
+            }
+        }
         for round in 0..args.rounds {
             // Alternate who goes first, so that a change in the machine's
             // background load does not always fall on the same server.
-            let mut order = vec![Target::Echo, Target::Lluavd];
-            if servers.lluavd_echo.is_some() {
-                order.push(Target::LluavdEcho);
-            }
+            let mut order: Vec<usize> = (0..loads.len()).collect();
             if round % 2 == 1 {
                 order.reverse();
             }
-            for target in order {
-                let (url, pid, total) = match (target, &servers.lluavd_echo) {
-                    (Target::Echo, _) => (&echo_url, echo_pid, &mut echo),
-                    (Target::Lluavd, _) => (&lluavd_url, lluavd_pid, &mut lluavd),
-                    (Target::LluavdEcho, Some(d)) => (&d.url, d.pid(), &mut lluavd_echo),
-                    (Target::LluavdEcho, None) => continue,
-                };
-                let stats = runtime.block_on(load(url, pid, target, c, m))?;
+            for i in order {
+                let (target, url, pid, total) = &mut loads[i];
+                let stats = runtime.block_on(load(url, *pid, *target, c, m))?;
                 println!("{:<7} C={c:<5} M={m:<6} round {round}: {stats}", target.name());
                 match total {
                     Some(t) => t.merge(&stats)?,
@@ -337,13 +360,16 @@ fn bench(args: &Args) -> Result<(), BenchError> {
                 }
             }
         }
-        if let (Some(echo), Some(lluavd)) = (echo, lluavd) {
+        let mut take = |want: Target| loads.iter_mut().find(|l| l.0 == want).and_then(|l| l.3.take());
+        if let (Some(echo), Some(lluavd)) = (take(Target::Echo), take(Target::Lluavd)) {
             rows.push(Row {
                 connections: c,
                 messages: m,
                 echo,
                 lluavd,
-                lluavd_echo,
+                lluavd_echo: take(Target::LluavdEcho),
+                baseline: take(Target::Baseline),
+                baseline_echo: take(Target::BaselineEcho),
             });
         }
     }
@@ -399,11 +425,15 @@ fn raise_open_file_limit(connections: usize) -> Result<(), BenchError> {
 }
 
 /// Which server a connection talks to, and so what its replies must be.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Target {
     Echo,
     Lluavd,
     LluavdEcho,
+    /// `--baseline-lluavd`.
+    Baseline,
+    /// `--baseline-lluavd` with `--echo`.
+    BaselineEcho,
 }
 
 impl Target {
@@ -412,6 +442,8 @@ impl Target {
             Target::Echo => "echo",
             Target::Lluavd => "lluavd",
             Target::LluavdEcho => "lluavd --echo",
+            Target::Baseline => "baseline",
+            Target::BaselineEcho => "baseline --echo",
         }
     }
 
@@ -420,8 +452,8 @@ impl Target {
     /// `ret` first) from lluavd.
     fn check(self, reply: &str) -> Result<(), BenchError> {
         let ok = match self {
-            Target::Echo | Target::LluavdEcho => reply == FRAME,
-            Target::Lluavd => reply.starts_with("{\"ret\":0,"),
+            Target::Echo | Target::LluavdEcho | Target::BaselineEcho => reply == FRAME,
+            Target::Lluavd | Target::Baseline => reply.starts_with("{\"ret\":0,"),
         };
         if ok {
             Ok(())
@@ -448,13 +480,13 @@ async fn connect(url: &str, target: Target) -> Result<Ws, BenchError> {
     .map_err(|_| BenchError::Timeout("WebSocket handshake"))?
     .map_err(|e| BenchError::Connect(format!("{url}: {e}")))?;
     match target {
-        Target::Lluavd => {
+        Target::Lluavd | Target::Baseline => {
             let reply = round_trip(&mut ws, &format!("login {PASSWORD}")).await?;
-            Target::Lluavd.check(&reply)?;
+            target.check(&reply)?;
         }
         // The echo server's connection does its first read and write, as a
         // login does for lluavd's.
-        Target::Echo | Target::LluavdEcho => {
+        Target::Echo | Target::LluavdEcho | Target::BaselineEcho => {
             let reply = round_trip(&mut ws, FRAME).await?;
             target.check(&reply)?;
         }
@@ -655,6 +687,7 @@ async fn load(url: &str, server_pid: u32, target: Target, c: usize, m: usize) ->
 struct Memory {
     echo: f64,
     lluavd: f64,
+    baseline: Option<f64>,
 }
 
 async fn idle_memory(servers: &Servers, n: usize) -> Result<Memory, BenchError> {
@@ -667,9 +700,14 @@ async fn idle_memory(servers: &Servers, n: usize) -> Result<Memory, BenchError> 
         close_all(conns).await;
         Ok((after as f64 - before as f64) / n as f64)
     }
+    let baseline = match &servers.baseline {
+        Some(d) => Some(per_connection(d.pid(), &d.url, Target::Baseline, n).await?),
+        None => None,
+    };
     Ok(Memory {
         echo: per_connection(servers.echo.child.id(), &servers.echo.url, Target::Echo, n).await?,
         lluavd: per_connection(servers.lluavd.pid(), &servers.lluavd.url, Target::Lluavd, n).await?,
+        baseline,
     })
 }
 
@@ -759,11 +797,57 @@ fn print_summary(rows: &[Row], memory: &Memory, idle: usize, load_before: &str, 
             }
         }
     }
+    print_against_baseline(rows);
     println!();
     println!(
         "VmRSS per idle connection ({idle} connections): lluavd {:.1} KiB (logged in), echo {:.1} KiB",
         memory.lluavd, memory.echo
     );
+    if let Some(b) = memory.baseline {
+        println!("VmRSS per idle connection, baseline lluavd: {b:.1} KiB (logged in)");
+    }
+}
+
+/// This build's and the baseline's figures of one server in a row.
+type Pair = fn(&Row) -> Option<(&Stats, &Stats)>;
+
+/// With `--baseline-lluavd`: this build against the baseline, server by
+/// server (lluavd, and `--echo` with `--lluavd-echo`).
+fn print_against_baseline(rows: &[Row]) {
+    let pairs: [(&str, Pair); 2] = [
+        ("lluavd", |r| r.baseline.as_ref().map(|b| (&r.lluavd, b))),
+        ("lluavd --echo", |r| {
+            r.lluavd_echo.as_ref().zip(r.baseline_echo.as_ref())
+        }),
+    ];
+    for (name, pair) in pairs {
+        if !rows.iter().any(|r| pair(r).is_some()) {
+            continue;
+        }
+        println!();
+        println!(
+            "| C | {name} msg/s this / baseline | throughput this/baseline | server CPU µs/msg (kernel) this / baseline | CPU this/baseline | p99 µs this / baseline |"
+        );
+        println!("|---:|---:|---:|---:|---:|---:|");
+        for r in rows {
+            if let Some((this, base)) = pair(r) {
+                println!(
+                    "| {} | {:.0} / {:.0} | {:.1} % | {:.2} ({:.2}) / {:.2} ({:.2}) | {:.3}x | {:.0} / {:.0} |",
+                    r.connections,
+                    this.msgs_per_s(),
+                    base.msgs_per_s(),
+                    100.0 * this.msgs_per_s() / base.msgs_per_s(),
+                    this.server_cpu_us_per_msg(),
+                    this.server_sys_us_per_msg(),
+                    base.server_cpu_us_per_msg(),
+                    base.server_sys_us_per_msg(),
+                    this.server_cpu_us_per_msg() / base.server_cpu_us_per_msg(),
+                    this.micros(0.99),
+                    base.micros(0.99),
+                );
+            }
+        }
+    }
 }
 
 /// The echo server's and the client's tungstenite settings, tuned like
