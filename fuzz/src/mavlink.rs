@@ -242,9 +242,10 @@ fn mission_result(b: u8) -> MavMissionResult {
 fn upload_steps(input: &mut Input<'_>) {
     let n = 1 + u16::from(input.byte() % 8);
     let items = items(n);
-    let Ok(mut upload) = Upload::new(AUTOPILOT, &items, 1 + u32::from(input.byte() % 5)) else {
+    let Ok(upload) = Upload::new(AUTOPILOT, &items, 1 + u32::from(input.byte() % 5)) else {
         return;
     };
+    let mut upload = upload.restarting(u32::from(input.byte() % 3));
     check_upload_message(&upload.first(), n);
     for _ in 0..64 {
         let heard = match input.byte() % 4 {

@@ -70,6 +70,11 @@ pub struct Timing {
     pub mission_item: Duration,
     /// How many times a mission message is sent before giving up.
     pub mission_attempts: u32,
+    /// How many times an upload that stalled mid-transfer starts over
+    /// with `MISSION_COUNT`: an autopilot gives up its side of a transfer
+    /// after its own few re-requests (MAVSDK after 5 × 0.5 s) and then
+    /// answers nothing but a new one.
+    pub mission_restarts: u32,
     /// How long to wait for a `PARAM_VALUE`.
     pub param: Duration,
     /// How many times a parameter request is sent.
@@ -84,6 +89,7 @@ impl Default for Timing {
             in_progress: Duration::from_secs(30),
             mission_item: Duration::from_millis(1500),
             mission_attempts: 5,
+            mission_restarts: 1,
             param: Duration::from_millis(1500),
             param_attempts: 3,
         }
@@ -224,17 +230,21 @@ async fn acknowledge<P: Port>(
 #[allow(deprecated)]
 /// Uploads `items` with the mission protocol: `MISSION_COUNT`, then the
 /// item each `MISSION_REQUEST_INT` (or legacy `MISSION_REQUEST`) asks for,
-/// until `MISSION_ACK` (see [`Upload`]). When the final acknowledgement
-/// is lost, the mission count is read back: the autopilot holds the
-/// mission if it holds that many items. Nothing is ever cancelled: the
-/// autopilot may hold the mission.
+/// until `MISSION_ACK` (see [`Upload`]). A transfer that stalls after
+/// the autopilot asked for an item starts over with `MISSION_COUNT` up to
+/// `mission_restarts` times. When the final acknowledgement is lost, the
+/// mission count is read back: the autopilot holds the mission if it
+/// holds that many items. Nothing is ever cancelled: the autopilot may
+/// hold the mission. A dead link answers within
+/// `mission_attempts × mission_item` per start (and as long again for the
+/// read-back after the last item).
 pub async fn upload_mission<P: Port>(
     port: &P,
     timing: &Timing,
     items: &[MISSION_ITEM_INT_DATA],
 ) -> Result<(), MavError> {
     let target = port.target()?;
-    let mut upload = Upload::new(target, items, timing.mission_attempts)?;
+    let mut upload = Upload::new(target, items, timing.mission_attempts)?.restarting(timing.mission_restarts);
     let mut rx = port.subscribe();
     port.send(upload.first()).await?;
     loop {
@@ -294,6 +304,12 @@ pub struct Upload<'a> {
     /// The highest item asked for.
     highest: Option<u16>,
     silent: u32,
+    /// How many times a stalled transfer starts over.
+    restarts: u32,
+    /// How many times it started over.
+    restarted: u32,
+    /// The item the first transfer stalled after, once started over.
+    first_stall: Option<u16>,
     /// The final item was sent again after a silence: the autopilot may
     /// have finished already, so an error acknowledgement may only say
     /// that no transfer is in progress.
@@ -311,15 +327,25 @@ impl<'a> Upload<'a> {
             items,
             count,
             attempts,
-            last: MavMessage::MISSION_COUNT(MISSION_COUNT_DATA {
-                count,
-                target_system: target.system,
-                target_component: target.component,
-            }),
+            last: count_message(target, count),
             highest: None,
             silent: 0,
+            restarts: 0,
+            restarted: 0,
+            first_stall: None,
             final_again: false,
         })
+    }
+
+    /// The same upload, started over with `MISSION_COUNT` up to `restarts`
+    /// times when it stalls after the autopilot asked for an item.
+    #[must_use]
+    pub fn restarting(self, restarts: u32) -> Self {
+        Upload { restarts, ..self }
+    }
+
+    fn count_message(&self) -> MavMessage {
+        count_message(self.target, self.count)
     }
 
     /// How many items.
@@ -386,14 +412,58 @@ impl<'a> Upload<'a> {
         if self.all_sent() {
             return Next::ReadBack;
         }
-        let stage = self
-            .highest
-            .map_or("MISSION_COUNT".to_owned(), |s| format!("mission item {s}"));
-        Next::Fail(MavError::NoAnswer(format!(
-            "mission upload stalled after {stage} of {} ({} attempts)",
-            self.count, self.silent
-        )))
+        match self.highest {
+            Some(stalled) if self.restarted < self.restarts => {
+                // The autopilot may have given up its side of the transfer
+                // (it asks for nothing then): a new MISSION_COUNT starts
+                // it afresh, replacing what it received so far.
+                tracing::info!(
+                    stalled,
+                    count = self.count,
+                    "mission upload stalled; starting it over"
+                );
+                self.restarted += 1;
+                self.first_stall = self.first_stall.or(Some(stalled));
+                self.silent = 0;
+                self.highest = None;
+                self.final_again = false;
+                self.last = self.count_message();
+                Next::Send
+            }
+            // Never asked for an item (or not since starting over): a new
+            // MISSION_COUNT would only be another attempt.
+            highest => Next::Fail(self.stalled(highest)),
+        }
     }
+
+    /// The answer to an upload that stalled after the autopilot asked for
+    /// `highest` (`None`: after `MISSION_COUNT`).
+    fn stalled(&self, highest: Option<u16>) -> MavError {
+        let (count, attempts) = (self.count, self.silent);
+        let stage = |h: Option<u16>| h.map_or("MISSION_COUNT".to_owned(), |s| format!("mission item {s}"));
+        let mut why = match self.first_stall {
+            None => format!("mission upload stalled after {} of {count}", stage(highest)),
+            Some(first) => format!(
+                "mission upload stalled after mission item {first} of {count}, and after {} when started over",
+                stage(highest)
+            ),
+        };
+        why.push_str(&format!(" ({attempts} attempts)"));
+        if highest.is_some() || self.first_stall.is_some() {
+            // Some autopilots store items as they arrive.
+            why.push_str("; the autopilot may hold part of it: upload it again");
+        }
+        MavError::NoAnswer(why)
+    }
+}
+
+/// The `MISSION_COUNT` that starts an upload of `count` items to `target`.
+fn count_message(target: Target, count: u16) -> MavMessage {
+    MavMessage::MISSION_COUNT(MISSION_COUNT_DATA {
+        count,
+        target_system: target.system,
+        target_component: target.component,
+    })
 }
 
 /// After a lost final acknowledgement: whether the autopilot holds

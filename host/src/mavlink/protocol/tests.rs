@@ -291,19 +291,154 @@ async fn a_link_that_dies_mid_upload_is_no_answer_and_nothing_is_cancelled() {
         MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 => vec![request(1)],
         _ => vec![],
     });
+    let started = Instant::now();
     let err = upload_mission(&port, &Timing::default(), &waypoints(3))
         .await
         .unwrap_err();
     assert_eq!(
         err,
-        MavError::NoAnswer("mission upload stalled after mission item 1 of 3 (5 attempts)".into())
+        MavError::NoAnswer(
+            "mission upload stalled after mission item 1 of 3, and after mission item 1 when started over \
+             (5 attempts); the autopilot may hold part of it: upload it again"
+                .into()
+        )
     );
+    assert_eq!(err.ret().code(), -3);
+    // Started over once, each start bounded by its attempts.
     let sent = port.sent();
-    assert_eq!(item_seqs(&sent), [0, 1, 1, 1, 1, 1]);
+    assert_eq!(item_seqs(&sent), [0, 1, 1, 1, 1, 1, 0, 1, 1, 1, 1, 1]);
+    assert_eq!(
+        sent_kinds(&sent)
+            .iter()
+            .filter(|k| **k == "MISSION_COUNT")
+            .count(),
+        2
+    );
+    let timing = Timing::default();
+    assert_eq!(
+        started.elapsed(),
+        timing.mission_item * timing.mission_attempts * 2
+    );
+    let refusals = sent
+        .iter()
+        .filter(|m| matches!(m, MavMessage::MISSION_ACK(_)))
+        .count();
+    assert_eq!(refusals, 0, "nothing cancelled: {sent:?}");
+}
+
+/// An autopilot like MAVSDK's: it gives up its side of a transfer when an
+/// item does not come, and then answers only a new `MISSION_COUNT`; the
+/// first transfer never sees item `lost`.
+fn gives_up_once(count: u16, lost: u16) -> impl FnMut(&MavMessage, usize) -> Vec<MavMessage> + Send {
+    let mut starts = 0;
+    move |m, _| match m {
+        MavMessage::MISSION_COUNT(_) => {
+            starts += 1;
+            vec![request(0)]
+        }
+        MavMessage::MISSION_ITEM_INT(i) if starts == 1 && i.seq >= lost => vec![],
+        MavMessage::MISSION_ITEM_INT(i) if i.seq + 1 < count => vec![request(i.seq + 1)],
+        MavMessage::MISSION_ITEM_INT(_) => vec![mission_ack(MavMissionResult::MAV_MISSION_ACCEPTED)],
+        _ => vec![],
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_upload_the_autopilot_gave_up_starts_over_with_mission_count() {
+    let port = Fake::new(gives_up_once(4, 2));
+    upload_mission(&port, &Timing::default(), &waypoints(4))
+        .await
+        .unwrap();
+    let sent = port.sent();
+    assert_eq!(item_seqs(&sent), [0, 1, 2, 2, 2, 2, 2, 0, 1, 2, 3]);
+    let kinds = sent_kinds(&sent);
+    assert_eq!(kinds.iter().filter(|k| **k == "MISSION_COUNT").count(), 2);
+    assert_eq!(kinds[8], "MISSION_COUNT", "{kinds:?}");
     assert!(
-        matches!(sent.last(), Some(MavMessage::MISSION_ITEM_INT(_))),
+        matches!(&sent[8], MavMessage::MISSION_COUNT(c) if c.count == 4 && c.target_system == 1),
         "{sent:?}"
     );
+}
+
+#[tokio::test(start_paused = true)]
+async fn without_restarts_a_stalled_upload_is_no_answer_at_once() {
+    let port = Fake::new(gives_up_once(4, 2));
+    let timing = Timing {
+        mission_restarts: 0,
+        ..Timing::default()
+    };
+    let err = upload_mission(&port, &timing, &waypoints(4)).await.unwrap_err();
+    assert_eq!(err.ret().code(), -3);
+    assert_eq!(
+        err.to_string(),
+        "No answer from the autopilot: mission upload stalled after mission item 2 of 4 (5 attempts); \
+         the autopilot may hold part of it: upload it again"
+    );
+    assert_eq!(item_seqs(&port.sent()), [0, 1, 2, 2, 2, 2, 2]);
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_autopilot_silent_after_starting_over_is_no_answer_naming_both_stalls() {
+    let mut counts = 0;
+    let port = Fake::new(move |m, _| match m {
+        MavMessage::MISSION_COUNT(_) if counts == 0 => {
+            counts += 1;
+            vec![request(0)]
+        }
+        MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 => vec![request(1)],
+        _ => vec![],
+    });
+    let err = upload_mission(&port, &Timing::default(), &waypoints(3))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "No answer from the autopilot: mission upload stalled after mission item 1 of 3, and after \
+         MISSION_COUNT when started over (5 attempts); the autopilot may hold part of it: upload it again"
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn an_autopilot_that_never_asks_is_not_sent_the_count_again_and_again() {
+    let port = Fake::new(|_, _| vec![]);
+    let started = Instant::now();
+    let err = upload_mission(&port, &Timing::default(), &waypoints(3))
+        .await
+        .unwrap_err();
+    assert_eq!(
+        err,
+        MavError::NoAnswer("mission upload stalled after MISSION_COUNT of 3 (5 attempts)".into())
+    );
+    assert_eq!(sent_kinds(&port.sent()), ["MISSION_COUNT"; 5]);
+    let timing = Timing::default();
+    assert_eq!(started.elapsed(), timing.mission_item * timing.mission_attempts);
+}
+
+#[test]
+fn a_restart_forgets_the_items_asked_for() {
+    let items = waypoints(3);
+    let mut upload = Upload::new(AUTOPILOT, &items, 2).unwrap().restarting(1);
+    assert_eq!(upload.step(Some(Heard::Request(0))), Next::Send);
+    assert_eq!(upload.step(Some(Heard::Request(1))), Next::Send);
+    assert_eq!(upload.step(None), Next::Send);
+    assert!(matches!(upload.last(), MavMessage::MISSION_ITEM_INT(i) if i.seq == 1));
+    assert_eq!(upload.step(None), Next::Send);
+    assert!(matches!(upload.last(), MavMessage::MISSION_COUNT(c) if c.count == 3));
+    // An acceptance before the new transfer's items is not believed.
+    assert!(matches!(
+        upload.step(Some(Heard::Ack(MavMissionResult::MAV_MISSION_ACCEPTED))),
+        Next::Fail(_)
+    ));
+}
+
+#[test]
+fn a_stall_on_the_last_item_is_read_back_not_restarted() {
+    let items = waypoints(2);
+    let mut upload = Upload::new(AUTOPILOT, &items, 2).unwrap().restarting(1);
+    assert_eq!(upload.step(Some(Heard::Request(0))), Next::Send);
+    assert_eq!(upload.step(Some(Heard::Request(1))), Next::Send);
+    assert_eq!(upload.step(None), Next::Send);
+    assert_eq!(upload.step(None), Next::ReadBack);
 }
 
 fn count(n: u16) -> MavMessage {
