@@ -103,6 +103,13 @@ impl Missions {
         self.on_autopilot = Some(plan);
     }
 
+    /// An upload failed: the autopilot may hold part of it (some store
+    /// items as they arrive), so no mission is known to be on it and
+    /// `mw_exec` uploads its mission again.
+    pub fn upload_failed(&mut self) {
+        self.on_autopilot = None;
+    }
+
     /// What the autopilot holds, as far as lluavd knows.
     pub fn on_autopilot(&self) -> Option<&OnAutopilot> {
         self.on_autopilot.as_ref()
@@ -395,5 +402,17 @@ mod tests {
             m.select(4, &[1]).unwrap_err().to_string(),
             "Invalid arguments: unknown mission 4"
         );
+    }
+
+    #[test]
+    fn after_a_failed_upload_no_mission_is_on_the_autopilot_but_all_are_kept() {
+        let mut m = Missions::default();
+        let waypoints = vec![wp(1, 0.0, 0.0, -1.0)];
+        m.uploaded(Mission { ext_id: 3, waypoints }, 0);
+        assert!(m.on_autopilot().is_some());
+        m.upload_failed();
+        assert_eq!(m.on_autopilot(), None);
+        // Still known, so `mw_exec 3` uploads it again.
+        assert_eq!(m.select(3, &[1]).unwrap().len(), 1);
     }
 }

@@ -160,7 +160,10 @@ pub async fn upload(
     items: Vec<MISSION_ITEM_INT_DATA>,
     first_seq: u16,
 ) -> Result<Uploaded, MavError> {
-    protocol::upload_mission(&*link, link.timing(), &items).await?;
+    if let Err(e) = protocol::upload_mission(&*link, link.timing(), &items).await {
+        link.with(|k| k.missions_mut().upload_failed());
+        return Err(e);
+    }
     let answer = Uploaded {
         ext_id: mission.ext_id,
         waypoints: mission.waypoints.len(),
@@ -182,7 +185,10 @@ pub async fn exec(
     items: Option<Vec<MISSION_ITEM_INT_DATA>>,
 ) -> Result<Started, MavError> {
     if let Some(items) = items {
-        protocol::upload_mission(&*link, link.timing(), &items).await?;
+        if let Err(e) = protocol::upload_mission(&*link, link.timing(), &items).await {
+            link.with(|k| k.missions_mut().upload_failed());
+            return Err(e);
+        }
         link.with(|k| k.missions_mut().holds(plan.clone()));
     }
     let target = link.target()?;
