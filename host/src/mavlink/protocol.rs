@@ -230,14 +230,14 @@ async fn acknowledge<P: Port>(
 #[allow(deprecated)]
 /// Uploads `items` with the mission protocol: `MISSION_COUNT`, then the
 /// item each `MISSION_REQUEST_INT` (or legacy `MISSION_REQUEST`) asks for,
-/// until `MISSION_ACK` (see [`Upload`]). A transfer that stalls after
-/// the autopilot asked for an item starts over with `MISSION_COUNT` up to
-/// `mission_restarts` times. When the final acknowledgement is lost, the
-/// mission count is read back: the autopilot holds the mission if it
-/// holds that many items. Nothing is ever cancelled: the autopilot may
-/// hold the mission. A dead link answers within
-/// `mission_attempts × mission_item` per start (and as long again for the
-/// read-back after the last item).
+/// until `MISSION_ACK` (see [`Upload`]). When the final acknowledgement
+/// is lost, the mission count is read back: the autopilot holds the
+/// mission if it holds that many items. A transfer that stalls after the
+/// autopilot asked for an item, or whose read-back finds another count,
+/// starts over with `MISSION_COUNT` up to `mission_restarts` times.
+/// Nothing is ever cancelled: the autopilot may hold the mission. Each
+/// start, and each read-back, waits at most
+/// `mission_attempts × mission_item` for an answer.
 pub async fn upload_mission<P: Port>(
     port: &P,
     timing: &Timing,
@@ -260,7 +260,11 @@ pub async fn upload_mission<P: Port>(
             Next::Send => port.send(upload.last()).await?,
             Next::Wait => {}
             Next::Done => return Ok(()),
-            Next::ReadBack => return read_back(port, timing, upload.count()).await,
+            Next::ReadBack => match upload.read_back(read_back(port, timing).await?) {
+                Next::Send => port.send(upload.last()).await?,
+                Next::Fail(e) => return Err(e),
+                _ => return Ok(()),
+            },
             Next::Fail(e) => return Err(e),
         }
     }
@@ -338,7 +342,9 @@ impl<'a> Upload<'a> {
     }
 
     /// The same upload, started over with `MISSION_COUNT` up to `restarts`
-    /// times when it stalls after the autopilot asked for an item.
+    /// times when it stalls after the autopilot asked for an item, or when
+    /// the read-back after a lost final acknowledgement finds the
+    /// autopilot holding another count.
     #[must_use]
     pub fn restarting(self, restarts: u32) -> Self {
         Upload { restarts, ..self }
@@ -346,11 +352,6 @@ impl<'a> Upload<'a> {
 
     fn count_message(&self) -> MavMessage {
         count_message(self.target, self.count)
-    }
-
-    /// How many items.
-    pub fn count(&self) -> u16 {
-        self.count
     }
 
     /// The first message: `MISSION_COUNT`.
@@ -422,18 +423,52 @@ impl<'a> Upload<'a> {
                     count = self.count,
                     "mission upload stalled; starting it over"
                 );
-                self.restarted += 1;
-                self.first_stall = self.first_stall.or(Some(stalled));
-                self.silent = 0;
-                self.highest = None;
-                self.final_again = false;
-                self.last = self.count_message();
-                Next::Send
+                self.start_over(stalled)
             }
             // Never asked for an item (or not since starting over): a new
             // MISSION_COUNT would only be another attempt.
             highest => Next::Fail(self.stalled(highest)),
         }
+    }
+
+    /// What to do after the read-back that follows a lost final
+    /// acknowledgement: the autopilot holds `held` items (`None`: nothing
+    /// read back). An autopilot that gave up before the last item arrived
+    /// holds another count: the upload starts over if it still may.
+    pub fn read_back(&mut self, held: Option<u16>) -> Next {
+        let count = self.count;
+        match held {
+            Some(held) if held == count => {
+                tracing::info!(count, "no final MISSION_ACK, but the autopilot holds every item");
+                Next::Done
+            }
+            Some(held) if self.restarted < self.restarts => {
+                tracing::info!(
+                    held,
+                    count,
+                    "no final MISSION_ACK and another mission read back; starting over"
+                );
+                self.start_over(count.saturating_sub(1))
+            }
+            Some(held) => Next::Fail(MavError::NoAnswer(format!(
+                "no MISSION_ACK for the mission's {count} items, and the autopilot holds {held}"
+            ))),
+            None => Next::Fail(MavError::NoAnswer(format!(
+                "no MISSION_ACK for the mission's {count} items, and no mission count read back"
+            ))),
+        }
+    }
+
+    /// Starts the transfer over with `MISSION_COUNT`; it had stalled after
+    /// item `stalled`.
+    fn start_over(&mut self, stalled: u16) -> Next {
+        self.restarted += 1;
+        self.first_stall = self.first_stall.or(Some(stalled));
+        self.silent = 0;
+        self.highest = None;
+        self.final_again = false;
+        self.last = self.count_message();
+        Next::Send
     }
 
     /// The answer to an upload that stalled after the autopilot asked for
@@ -466,13 +501,12 @@ fn count_message(target: Target, count: u16) -> MavMessage {
     })
 }
 
-/// After a lost final acknowledgement: whether the autopilot holds
-/// `count` items, read back with `MISSION_REQUEST_LIST`; the download is
-/// then ended with `MISSION_ACK`.
-async fn read_back<P: Port>(port: &P, timing: &Timing, count: u16) -> Result<(), MavError> {
+/// After a lost final acknowledgement: how many items the autopilot
+/// holds, read back with `MISSION_REQUEST_LIST` (`None`: no answer); the
+/// download is then ended with `MISSION_ACK`.
+async fn read_back<P: Port>(port: &P, timing: &Timing) -> Result<Option<u16>, MavError> {
     let target = port.target()?;
     let mut rx = port.subscribe();
-    let mut held = None;
     for _ in 0..timing.mission_attempts {
         port.send(MavMessage::MISSION_REQUEST_LIST(MISSION_REQUEST_LIST_DATA {
             target_system: target.system,
@@ -480,34 +514,22 @@ async fn read_back<P: Port>(port: &P, timing: &Timing, count: u16) -> Result<(),
         }))
         .await?;
         let deadline = Instant::now() + timing.mission_item;
-        held = next(&mut rx, target, deadline, |m| match m {
+        let held = next(&mut rx, target, deadline, |m| match m {
             MavMessage::MISSION_COUNT(c) => Some(c.count),
             _ => None,
         })
         .await?;
         if held.is_some() {
-            break;
+            port.send(MavMessage::MISSION_ACK(MISSION_ACK_DATA {
+                target_system: target.system,
+                target_component: target.component,
+                mavtype: MavMissionResult::MAV_MISSION_ACCEPTED,
+            }))
+            .await?;
+            return Ok(held);
         }
     }
-    let Some(held) = held else {
-        return Err(MavError::NoAnswer(format!(
-            "no MISSION_ACK for the mission's {count} items, and no mission count read back"
-        )));
-    };
-    port.send(MavMessage::MISSION_ACK(MISSION_ACK_DATA {
-        target_system: target.system,
-        target_component: target.component,
-        mavtype: MavMissionResult::MAV_MISSION_ACCEPTED,
-    }))
-    .await?;
-    if held == count {
-        tracing::info!(count, "no final MISSION_ACK, but the autopilot holds every item");
-        Ok(())
-    } else {
-        Err(MavError::NoAnswer(format!(
-            "no MISSION_ACK for the mission's {count} items, and the autopilot holds {held}"
-        )))
-    }
+    Ok(None)
 }
 
 /// A `MISSION_ACK` refusal: the mission itself (-2) or the vehicle's state

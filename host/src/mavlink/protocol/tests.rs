@@ -500,6 +500,41 @@ async fn a_lost_final_ack_with_another_mission_read_back_is_no_answer() {
 }
 
 #[tokio::test(start_paused = true)]
+async fn a_read_back_of_another_count_after_the_last_item_starts_over() {
+    // The first transfer never sees its last item and gives up, keeping
+    // the 7 items it held before; the second one completes.
+    let mut starts = 0;
+    let port = Fake::new(move |m, _| match m {
+        MavMessage::MISSION_COUNT(_) => {
+            starts += 1;
+            vec![request(0)]
+        }
+        MavMessage::MISSION_ITEM_INT(i) if i.seq == 0 => vec![request(1)],
+        MavMessage::MISSION_ITEM_INT(_) if starts == 1 => vec![],
+        MavMessage::MISSION_ITEM_INT(_) => vec![mission_ack(MavMissionResult::MAV_MISSION_ACCEPTED)],
+        MavMessage::MISSION_REQUEST_LIST(_) => vec![count(7)],
+        _ => vec![],
+    });
+    upload_mission(&port, &Timing::default(), &waypoints(2))
+        .await
+        .unwrap();
+    let sent = port.sent();
+    let kinds = sent_kinds(&sent);
+    assert_eq!(
+        kinds[7..],
+        [
+            "MISSION_REQUEST_LIST",
+            "MISSION_ACK",
+            "MISSION_COUNT",
+            "MISSION_ITEM_INT",
+            "MISSION_ITEM_INT"
+        ],
+        "{kinds:?}"
+    );
+    assert_eq!(item_seqs(&sent), [0, 1, 1, 1, 1, 1, 0, 1]);
+}
+
+#[tokio::test(start_paused = true)]
 async fn an_error_ack_to_a_final_item_sent_again_is_read_back_not_believed() {
     // The autopilot finished (its ACK was lost) and answers the repeated
     // last item with "no transfer in progress".
