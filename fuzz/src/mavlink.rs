@@ -257,7 +257,18 @@ fn upload_steps(input: &mut Input<'_>) {
         match upload.step(heard) {
             Next::Send => check_upload_message(&upload.last(), n),
             Next::Wait => {}
-            Next::Done | Next::ReadBack | Next::Fail(_) => return,
+            // The count read back, or none: the upload may start over.
+            Next::ReadBack => {
+                let held = input
+                    .byte()
+                    .is_multiple_of(2)
+                    .then(|| u16::from(input.byte()) % (n + 2));
+                match upload.read_back(held) {
+                    Next::Send => check_upload_message(&upload.last(), n),
+                    _ => return,
+                }
+            }
+            Next::Done | Next::Fail(_) => return,
         }
     }
 }
