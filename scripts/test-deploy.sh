@@ -129,11 +129,14 @@ dpkg -i "$work/first.deb" </dev/null
 state installed "$(id lluav)"
 state verify "$(systemd-analyze verify /usr/lib/systemd/system/lluavd.service 2>&1 && echo clean)"
 state etc "$(stat -c '%U:%G %a' /etc/lluav /etc/lluav/lluavd.toml | tr '\n' ' ')"
-sed -i 's|^#bind = .*|bind = "0.0.0.0:53001"|' /etc/lluav/lluavd.toml
+# Beyond loopback, as the file's comments say: an admin value of one's own
+# (lluavd refuses the public one there).
+sed -i -e 's|^#bind = .*|bind = "0.0.0.0:53001"|' \
+    -e 's|^#admin_password = .*|admin_password = "4242"|' /etc/lluav/lluavd.toml
 mkdir -p /var/lib/lluav && echo kept >/var/lib/lluav/params.json
 dpkg -i "$work/upgrade.deb" </dev/null
 state upgraded "$(dpkg-query -W -f '${Version}' lluavd)"
-state edit-kept "$(grep -c '^bind = "0.0.0.0:53001"' /etc/lluav/lluavd.toml)"
+state edit-kept "$(grep -c -e '^bind = "0.0.0.0:53001"' -e '^admin_password = "4242"' /etc/lluav/lluavd.toml)"
 state check-config "$(/usr/bin/lluavd --check-config --config /etc/lluav/lluavd.toml --password s3cretpw | grep -c '^bind = "0.0.0.0:53001"')"
 dpkg -r lluavd </dev/null
 state removed-binary "$([ -e /usr/bin/lluavd ] && echo present || echo gone)"
@@ -149,7 +152,7 @@ check "install makes lluav, in dialout" grep -qE '^installed: uid=.*\(lluav\).*\
 check "install: /etc/lluav root:lluav 750, the config 640" has_line "$work/dpkg.log" "etc: root:lluav 750 root:lluav 640 "
 check "systemd-analyze verify of the installed unit" has_line "$work/dpkg.log" "verify: clean"
 check "upgrade to the next version" has_line "$work/dpkg.log" "upgraded: $(dpkg-deb -f "$work/upgrade.deb" Version)"
-check "upgrade keeps the edited config" has_line "$work/dpkg.log" "edit-kept: 1"
+check "upgrade keeps the edited config" has_line "$work/dpkg.log" "edit-kept: 2"
 check "the installed lluavd checks the edited config" has_line "$work/dpkg.log" "check-config: 1"
 check "remove: the binary goes" has_line "$work/dpkg.log" "removed-binary: gone"
 check "remove: the config stays" has_line "$work/dpkg.log" "removed-config: present"
