@@ -5,6 +5,7 @@
 
 use std::fmt;
 
+use lluav_core::Ret;
 use serde_json::{Map, Value};
 
 use super::topic::MAX_NAME;
@@ -110,7 +111,8 @@ pub fn response(id: Option<&str>, response: &str) -> String {
 /// An error response written here, not by the core (a request that never
 /// reached it): `{"ret":..,"cmd":..,"ts":..,"msg":".."}`, in the core's
 /// member order.
-pub fn error(ret: i64, cmd: u8, ts: i64, msg: &str) -> String {
+pub fn error(ret: Ret, cmd: u8, ts: i64, msg: &str) -> String {
+    let ret = ret.code();
     let msg = serde_json::to_string(msg).unwrap_or_default();
     format!("{{\"ret\":{ret},\"cmd\":{cmd},\"ts\":{ts},\"msg\":{msg}}}")
 }
@@ -118,7 +120,7 @@ pub fn error(ret: i64, cmd: u8, ts: i64, msg: &str) -> String {
 /// The response to an envelope that cannot be read.
 pub fn refused(refused: &Refused, ts: i64) -> String {
     let msg = format!("Invalid request envelope: {}", refused.why);
-    response(refused.id.as_deref(), &error(-2, 0, ts, &msg))
+    response(refused.id.as_deref(), &error(Ret::InvalidArgs, 0, ts, &msg))
 }
 
 #[cfg(test)]

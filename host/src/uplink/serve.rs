@@ -17,7 +17,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use bytes::Bytes;
-use lluav_core::{Outcome, Session};
+use lluav_core::{Failure, Outcome, Ret, Session};
 use rumqttc::{AsyncClient, Publish, QoS};
 use tracing::warn;
 
@@ -190,7 +190,7 @@ impl<S: Sessions> Shared<S> {
         let admit = self
             .table()
             .request(client, &request.id, &request.frame, self.now());
-        let refuse = |ret: i64, msg: &str| {
+        let refuse = |ret: Ret, msg: &str| {
             let response = envelope::error(ret, command_id(&request.frame), unix_ms(), msg);
             envelope::response(Some(&request.id), &response).into()
         };
@@ -200,11 +200,11 @@ impl<S: Sessions> Shared<S> {
             }
             Admit::Queued | Admit::Running => {}
             Admit::Repeat(answer) => self.answer_now(client, answer),
-            Admit::Forgotten => self.answer_now(client, refuse(-1, FORGOTTEN)),
-            Admit::TooMany => self.answer_now(client, refuse(-1, TOO_MANY)),
+            Admit::Forgotten => self.answer_now(client, refuse(Ret::Failed, FORGOTTEN)),
+            Admit::TooMany => self.answer_now(client, refuse(Ret::Failed, TOO_MANY)),
             Admit::Full => {
                 self.notes.note(Trouble::Full);
-                self.answer_now(client, refuse(-1, FULL));
+                self.answer_now(client, refuse(Ret::Failed, FULL));
             }
         }
     }
@@ -282,7 +282,12 @@ async fn run<S: Sessions>(
         // A text frame is closed only for a buffer too small to answer
         // in: a fault of ours, answered as one.
         Outcome::Close(_) | Outcome::Pending(..) => (
-            envelope::error(-100, command_id(&job.frame), unix_ms(), "Unhandled exception"),
+            envelope::error(
+                Ret::Unhandled,
+                command_id(&job.frame),
+                unix_ms(),
+                Failure::unhandled().msg(),
+            ),
             true,
         ),
     };
