@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use lluav_core::throttle::{DEFAULT_MAX_LOCKOUT_MS, Slot, Throttle};
-use lluav_core::{Auth, AuthError, Clock, Failure, Message, Outcome, Peer, Server, Session};
+use lluav_core::{Auth, AuthError, Clock, Failure, Message, Outcome, Peer, Server, Session, Via};
 use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
 use tokio::sync::watch;
@@ -116,7 +116,7 @@ impl<V: Vehicle> Handler for Protocol<V> {
     type Session = Session;
 
     fn session(&self, peer: SocketAddr) -> Session {
-        self.locked(|server| server.open(Some(peer.ip().into())))
+        self.locked(|server| server.open_via(Some(peer.ip().into()), Via::WebSocket(peer)))
     }
 
     async fn handle<'o>(
@@ -158,8 +158,9 @@ impl<V: Vehicle> Handler for Protocol<V> {
 }
 
 impl<V: Vehicle> uplink::Sessions for Protocol<V> {
-    fn open(&self, client: uplink::ClientKey) -> Session {
-        self.locked(|server| server.open(Some(Peer::Client(client.0))))
+    fn open(&self, client: Option<&str>, key: uplink::ClientKey) -> Session {
+        let via = client.map_or(Via::Local, Via::Uplink);
+        self.locked(|server| server.open_via(Some(Peer::Client(key.0)), via))
     }
 
     fn handle<'o>(

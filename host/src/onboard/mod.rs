@@ -103,6 +103,7 @@ impl<V: Vehicle> Onboard<V> {
             Owner::Both if cmd.id() == CommandId::State => {
                 out.object("state", |s| {
                     vehicle.write_state(ctx, s);
+                    ctx.write_authority(s);
                     companion.write_state(s);
                 });
                 Ok(Progress::Done)

@@ -61,8 +61,9 @@ pub struct ClientKey(pub [u8; 16]);
 
 /// The protocol, as the uplink reaches it: the daemon's handler.
 pub trait Sessions: Send + Sync + 'static {
-    /// A session for the client whose throttle key is `client`.
-    fn open(&self, client: ClientKey) -> Session;
+    /// A session for client id `client` (`None`: the uplink's own), whose
+    /// throttle key is `key`.
+    fn open(&self, client: Option<&str>, key: ClientKey) -> Session;
 
     /// Answers `frame` in `session` as a WebSocket text message would be
     /// answered; never [`Outcome::Pending`].

@@ -248,7 +248,7 @@ async fn work<S: Sessions>(shared: Arc<Shared<S>>, client: Arc<str>) {
         let Some(Take { job, session }) = next else {
             return;
         };
-        let session = session.unwrap_or_else(|| shared.sessions.open(shared.key(&client)));
+        let session = session.unwrap_or_else(|| shared.sessions.open(Some(&client), shared.key(&client)));
         let (response, session) = run(&*shared.sessions, session, &job, &mut out).await;
         let answer = Bytes::from(envelope::response(Some(&job.id), &response));
         let ended = {
