@@ -47,7 +47,7 @@ use std::io;
 use std::panic::{self, AssertUnwindSafe};
 use std::time::Duration;
 
-use lluav_core::{Backend, Command, CommandId, Context, Failure, Fields, SessionId, Step, Ticket};
+use lluav_core::{Backend, Command, CommandId, Context, Failsafe, Failure, Fields, SessionId, Step, Ticket};
 
 use crate::companion::Companion;
 use crate::vehicle::{Progress, Refusal, Reply, Vehicle, Wait};
@@ -188,6 +188,22 @@ impl<V: Vehicle> Backend for Onboard<V> {
 
     fn session_closed(&mut self, session: SessionId) {
         self.vehicle.session_closed(session);
+    }
+
+    fn failsafe(&self) -> Option<Failsafe> {
+        self.vehicle.failsafe()
+    }
+
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        self.vehicle.override_failsafe()
+    }
+
+    fn mission_running(&self) -> bool {
+        self.vehicle.mission_running()
+    }
+
+    fn control_timeout_ms(&self) -> u32 {
+        self.vehicle.control_timeout_ms()
     }
 }
 

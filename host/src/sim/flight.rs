@@ -152,7 +152,7 @@ pub(crate) struct Limits {
     pub(crate) yaw_rate: f64,
     /// Waypoint acceptance radius, m.
     pub(crate) accept: f64,
-    /// RTL altitude above home, m.
+    /// RTL altitude above home (clipped into the envelope), m.
     pub(crate) rtl_alt: f64,
     /// Whether RTL lands at home.
     pub(crate) rtl_land: bool,
@@ -164,6 +164,24 @@ pub(crate) struct Limits {
     pub(crate) autosleep_after: Option<f64>,
     /// Whether the pad charges the battery.
     pub(crate) charging: bool,
+}
+
+/// Why the simulated vehicle acts on its own (DESIGN.md, "Flight
+/// authority": failsafes win).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Failsafe {
+    /// Below `low_battery` in the air: it returns home.
+    BatteryLow,
+    /// Empty in the air: it lands where it is.
+    BatteryEmpty,
+}
+
+/// The failsafe that started, and whether the session in control
+/// overrode it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Active {
+    pub(crate) reason: Failsafe,
+    pub(crate) overridden: bool,
 }
 
 /// Totals since start, for `statics`.
@@ -189,9 +207,9 @@ pub(crate) struct Flight {
     home: Ned,
     next_route: u64,
     battery: f64,
-    /// The low-battery RTL of this flight has happened (a setpoint may
-    /// override it; it is not forced again).
-    low_battery_handled: bool,
+    /// The failsafe of this flight, until the vehicle is disarmed on the
+    /// ground: each reason starts once, on entry.
+    failsafe: Option<Active>,
     /// Waypoints reached since takeoff, for `mrtl`.
     trail: Vec<Ned>,
     events: Vec<RouteEvent>,
@@ -210,7 +228,7 @@ impl Default for Flight {
             home: Ned::default(),
             next_route: 1,
             battery: 100.0,
-            low_battery_handled: false,
+            failsafe: None,
             trail: Vec::new(),
             events: Vec::new(),
             totals: Totals::default(),
@@ -246,6 +264,18 @@ impl Flight {
     pub(crate) fn totals(&self) -> Totals {
         self.totals
     }
+    /// The failsafe of this flight, if one started.
+    pub(crate) fn failsafe(&self) -> Option<Active> {
+        self.failsafe
+    }
+    /// The session in control overrides the failsafe: it no longer refuses
+    /// motion commands (the vehicle goes on with what it does until told
+    /// otherwise); a different reason still starts a new one.
+    pub(crate) fn override_failsafe(&mut self) {
+        if let Some(f) = self.failsafe.as_mut() {
+            f.overridden = true;
+        }
+    }
     /// Waypoint legs left in the active route.
     pub(crate) fn legs_left(&self) -> usize {
         self.mode.route().map_or(0, |r| r.legs.len())
@@ -279,7 +309,7 @@ impl Flight {
         self.sp = Ned::new(self.pos.x, self.pos.y, self.pos.z.min(0.0) - alt);
         self.sp_yaw = self.yaw;
         self.totals.flights += 1;
-        self.low_battery_handled = false;
+        self.failsafe = None;
         self.trail.clear();
     }
 
@@ -364,10 +394,11 @@ impl Flight {
         Ok(id)
     }
 
-    /// Returns home: climbs to `rtl_alt` if lower, flies home, then lands or
-    /// hovers. With `retrace`, first flies back through the waypoints
-    /// reached since takeoff, in reverse (mission RTL).
-    pub(crate) fn rtl(&mut self, lim: &Limits, retrace: bool) -> SimResult {
+    /// Returns home: climbs to `rtl_alt` (already clipped into the
+    /// envelope) if lower, flies home, then lands or hovers; returns the
+    /// altitude it returns at. With `retrace`, first flies back through the
+    /// waypoints reached since takeoff, in reverse (mission RTL).
+    pub(crate) fn rtl(&mut self, lim: &Limits, retrace: bool) -> SimResult<f64> {
         let alt = self.pos.up().max(lim.rtl_alt);
         let at_alt = |p: Ned| Leg::to(Ned::new(p.x, p.y, -alt));
         let mut legs = vec![at_alt(self.pos)];
@@ -376,7 +407,7 @@ impl Flight {
         }
         legs.push(at_alt(self.home));
         let then = if lim.rtl_land { Then::Land } else { Then::Hover };
-        self.fly_route(legs, then, true).map(drop)
+        self.fly_route(legs, then, true).map(|_| alt)
     }
 
     /// Moves the position estimate (map relocalisation on the ground).
@@ -426,6 +457,9 @@ impl Flight {
             self.totals.armed_s += dt;
             self.battery = (self.battery - lim.drain * dt / 60.0).max(0.0);
             self.check_battery(lim);
+        } else {
+            // Disarmed on the ground: whatever failsafe there was is over.
+            self.failsafe = None;
         }
     }
 
@@ -469,16 +503,32 @@ impl Flight {
         ) {
             return;
         }
-        let low = self.battery < lim.low_battery && !self.low_battery_handled;
         if self.battery <= 0.0 {
-            tracing::warn!("battery empty: landing");
-            // Airborne by the check above, so landing cannot be refused.
-            let _ = self.land(lim);
-        } else if low && !matches!(self.mode, Mode::Rtl(_)) {
-            self.low_battery_handled = true;
+            if self.start(Failsafe::BatteryEmpty) {
+                tracing::warn!("battery empty: landing");
+                // Airborne by the check above, so landing cannot be refused.
+                let _ = self.land(lim);
+            }
+        } else if self.battery < lim.low_battery && self.start(Failsafe::BatteryLow) {
             tracing::warn!(battery = self.battery, "battery low: returning home");
-            let _ = self.rtl(lim, false);
+            if !matches!(self.mode, Mode::Rtl(_)) {
+                let _ = self.rtl(lim, false);
+            }
         }
+    }
+
+    /// Starts a failsafe for `reason`, unless it holds already (overridden
+    /// or not: a reason starts once) or a graver one does; whether it did.
+    fn start(&mut self, reason: Failsafe) -> bool {
+        let graver = |f: Active| f.reason == reason || f.reason == Failsafe::BatteryEmpty;
+        if self.failsafe.is_some_and(graver) {
+            return false;
+        }
+        self.failsafe = Some(Active {
+            reason,
+            overridden: false,
+        });
+        true
     }
 
     fn follow_route(&mut self, dt: f64, lim: &Limits) {

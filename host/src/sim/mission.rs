@@ -288,6 +288,11 @@ impl Missions {
         }
     }
 
+    /// Whether a waypoint run is under way.
+    pub(crate) fn running(&self) -> bool {
+        self.runs.last().is_some_and(|r| r.status == Status::Running)
+    }
+
     /// Marks the running run aborted and records a report.
     pub(crate) fn abort(&mut self, abort_id: Option<u32>, now_ms: i64) -> AbortReport {
         let run = self.runs.last_mut().filter(|r| r.status == Status::Running);
@@ -368,13 +373,15 @@ impl AbortReport {
 mod tests {
     use super::*;
     use crate::vehicle::Ned;
-    use crate::vehicle::mission::{Fence, parse};
+    use crate::vehicle::envelope::Envelope;
+    use crate::vehicle::mission::parse;
 
-    fn fence() -> Fence {
-        Fence {
+    fn fence() -> Envelope {
+        Envelope {
             home: Ned::default(),
-            radius: 100.0,
+            min_alt: 0.5,
             max_alt: 50.0,
+            radius: 100.0,
         }
     }
 

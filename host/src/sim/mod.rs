@@ -29,7 +29,7 @@ use std::io;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use lluav_core::{Command, CommandId, Context, Failure, Fields, Section};
+use lluav_core::{Action, Command, CommandId, Context, Failure, Fields, Section};
 
 use crate::files::{Files, Saved};
 use crate::vehicle::{Progress, Refusal, Snapshot, Vehicle};
@@ -129,7 +129,7 @@ impl Simulator {
             land: p.f64(Key::LandSpeed),
             yaw_rate: p.f64(Key::YawRate),
             accept: p.f64(Key::AcceptRadius),
-            rtl_alt: p.f64(Key::RtlAlt),
+            rtl_alt: self.envelope().clip(p.f64(Key::RtlAlt)),
             rtl_land: p.flag(Key::RtlLand),
             drain: p.f64(Key::BatteryDrain),
             low_battery: p.f64(Key::LowBattery),
@@ -211,6 +211,32 @@ impl Vehicle for Simulator {
 
     fn write_state(&self, ctx: &Context, state: &mut Fields<'_>) {
         self.write_state_fields(ctx, state);
+    }
+
+    fn failsafe(&self) -> Option<lluav_core::Failsafe> {
+        let active = self.flight.failsafe()?;
+        let (source, action) = match active.reason {
+            flight::Failsafe::BatteryLow => ("battery_low", Action::Rtl),
+            flight::Failsafe::BatteryEmpty => ("battery_empty", Action::Land),
+        };
+        Some(lluav_core::Failsafe {
+            overridden: active.overridden,
+            ..lluav_core::Failsafe::new(source, action)
+        })
+    }
+
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        tracing::warn!(failsafe = ?self.flight.failsafe(), "failsafe overridden by the session in control");
+        self.flight.override_failsafe();
+        Ok(())
+    }
+
+    fn mission_running(&self) -> bool {
+        matches!(self.flight.mode(), flight::Mode::Mission(_)) && self.missions.running()
+    }
+
+    fn control_timeout_ms(&self) -> u32 {
+        (self.params.f64(Key::ControlTimeout) * 1000.0) as u32
     }
 
     fn snapshot(&self) -> Snapshot {

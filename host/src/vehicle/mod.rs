@@ -14,6 +14,7 @@
 //! This module sits at the bottom of the vehicle side: it depends on
 //! lluav-core and the data directory ([`crate::files`]) only.
 
+pub mod envelope;
 pub mod mission;
 
 use std::future::Future;
@@ -21,7 +22,7 @@ use std::io;
 use std::pin::Pin;
 use std::time::Duration;
 
-use lluav_core::{Command, Context, Failure, Fields, Ret, SessionId};
+use lluav_core::{Command, Context, Failsafe, Failure, Fields, Ret, SessionId};
 
 use crate::files::{self, Files};
 
@@ -118,6 +119,28 @@ pub trait Vehicle: Send + 'static {
     /// A session's connection ended.
     fn session_closed(&mut self, session: SessionId) {
         let _ = session;
+    }
+
+    /// The failsafe that holds now, if any (as
+    /// [`lluav_core::Backend::failsafe`]).
+    fn failsafe(&self) -> Option<Failsafe> {
+        None
+    }
+
+    /// The session in control overrides the current failsafe (as
+    /// [`lluav_core::Backend::override_failsafe`]).
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        Ok(())
+    }
+
+    /// Whether a mission is running (`abort_report` would stop it).
+    fn mission_running(&self) -> bool {
+        false
+    }
+
+    /// How long control lasts without a request from its session, ms.
+    fn control_timeout_ms(&self) -> u32 {
+        lluav_core::DEFAULT_CONTROL_TIMEOUT_MS
     }
 
     /// Writes the vehicle's members of the `state` object: at least
