@@ -77,8 +77,9 @@ pub enum Step {
 
 /// The vehicle behind the protocol.
 ///
-/// The core runs `login`, `help`, `admin_lock`, `admin_unlock` and the
-/// session side of `passwd` itself; every other command reaches
+/// The core runs `login`, `help`, `admin_lock`, `admin_unlock`, `control`,
+/// `control_take`, `control_release` and the session side of `passwd`
+/// itself; every other command reaches
 /// [`Backend::execute`] only after all gates passed and its arguments were
 /// validated.
 pub trait Backend {

@@ -10,6 +10,8 @@
 //! - [`parse()`] / [`Command::encode`]: frame ↔ typed [`Command`], mirror
 //!   images of each other, borrowing from the frame;
 //! - [`gate`] and [`session`]: login, admin, armed and lock gates;
+//! - [`authority`]: who flies (one session in control) and the failsafes
+//!   no motion command cancels, gated before the backend;
 //! - [`response`]: JSON responses in caller-provided fixed buffers;
 //! - [`Backend`] and [`Clock`]: what an adapter supplies;
 //! - [`throttle`]: password guessing limited per client and across all;

@@ -4,7 +4,8 @@
 //! [`Server::handle`] runs the whole protocol: DESIGN.md's WebSocket close
 //! policy ([`Message::text`]), the gates in order, argument parsing, the
 //! session commands the core owns (`login`, `help`, `admin_lock`,
-//! `admin_unlock`, `passwd`), the backend, and the response. Adapters own
+//! `admin_unlock`, `passwd`, and flight authority's `control`,
+//! `control_take`, `control_release`), the backend, and the response. Adapters own
 //! sockets and framing only: they open a [`Session`] per connection with
 //! [`Server::open`], hand every message to [`Server::handle`], carry out the
 //! [`Outcome`] (calling [`Server::resume`] once a pending backend is ready)

@@ -23,8 +23,10 @@
 //! [`lluav_core::Backend::password_changed`], and `admin_lock` and
 //! `admin_unlock` through [`lluav_core::Backend::lock_mode_changed`].
 //!
-//! The core answers `login`, `help`, `admin_lock` and `admin_unlock`
-//! itself; they never reach a backend.
+//! The core answers `login`, `help`, `admin_lock`, `admin_unlock`,
+//! `control`, `control_take` and `control_release` itself; they never
+//! reach a backend. The failsafe, the mission and the control timeout the
+//! core's gates ask for are the vehicle's.
 //!
 //! # The `state` object
 //! `{"state":{...}}` with, from the vehicle: `armed` (bool), `fsm` (the
