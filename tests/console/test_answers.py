@@ -19,10 +19,8 @@ import sys
 import threading
 import time
 
-import websocket
-
 from conftest import PASSWORD
-from harness import ROOT, WAIT, Lluavd, free_udp_port
+from harness import ROOT, Client, Lluavd, free_udp_port
 
 sys.path.insert(0, str(ROOT / "tests" / "mavlink"))
 from fault_autopilot import FaultyAutopilot, mav  # noqa: E402
@@ -57,29 +55,6 @@ def check(name: str, answer: dict) -> None:
         f"then capture it (LLUAV_CAPTURE=1 bash scripts/test-console.sh -k answers).\n"
         f"now:  {json.dumps(answer, sort_keys=True)}\nkept: {json.dumps(kept, sort_keys=True)}"
     )
-
-
-class Client:
-    def __init__(self, daemon: Lluavd):
-        self.ws = websocket.create_connection(daemon.ws_url, timeout=WAIT, suppress_origin=True)
-
-    def ask(self, line: str) -> dict:
-        self.ws.send(line)
-        return json.loads(self.ws.recv())
-
-    def ok(self, line: str) -> dict:
-        answer = self.ask(line)
-        assert answer["ret"] == 0, (line, answer)
-        return answer
-
-    def state_when(self, what: str, ready) -> dict:
-        deadline = time.monotonic() + WAIT
-        while time.monotonic() < deadline:
-            answer = self.ok("state")
-            if ready(answer["state"]):
-                return answer
-            time.sleep(0.1)
-        raise AssertionError(f"never {what}: {answer}")
 
 
 def test_the_simulator_sends_what_the_console_reads(binary):
