@@ -177,6 +177,12 @@ impl Pilot {
         self.since_ms
     }
 
+    /// When its session's last request arrived, ms since the Unix epoch
+    /// (control lapses `control_timeout` after it).
+    pub fn last_ms(&self) -> i64 {
+        self.last_ms
+    }
+
     /// Whether it took control as an admin (in lock mode it then keeps it
     /// against everyone but another admin).
     pub fn admin(&self) -> bool {

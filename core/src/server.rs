@@ -224,6 +224,15 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         self.backend.session_closed(session.id());
     }
 
+    /// When control lapses unless its session speaks first, ms since the
+    /// Unix epoch; `None` while control is free. An adapter that tells
+    /// others when control lapses waits until then and calls
+    /// [`Server::expire_control`].
+    pub fn control_lapses_at(&self) -> Option<i64> {
+        let timeout = i64::from(self.backend.control_timeout_ms());
+        self.control.pilot().map(|p| p.last_ms().saturating_add(timeout))
+    }
+
     /// Ends control held without a request for the backend's control
     /// timeout; returns whether it did. Checked before every request
     /// anyway; an adapter that tells others when control lapses calls it

@@ -89,18 +89,28 @@ mod tests {
     fn every_event_has_its_fields_after_the_common_ones() {
         let cases = [
             (
-                Event::Fsm { from: "hover", to: "mission" },
+                Event::Fsm {
+                    from: "hover",
+                    to: "mission",
+                },
                 r#""from":"hover","to":"mission""#,
             ),
             (
                 Event::Mission {
                     ext_id: 7,
-                    status: MissionStatus::Reached { wp: 4, index: 2, count: 3 },
+                    status: MissionStatus::Reached {
+                        wp: 4,
+                        index: 2,
+                        count: 3,
+                    },
                 },
                 r#""ext_id":7,"status":"reached","wp":4,"index":2,"count":3"#,
             ),
             (
-                Event::Mission { ext_id: 7, status: MissionStatus::Completed },
+                Event::Mission {
+                    ext_id: 7,
+                    status: MissionStatus::Completed,
+                },
                 r#""ext_id":7,"status":"completed""#,
             ),
             (
@@ -112,11 +122,18 @@ mod tests {
                 r#""reason":"battery_low","action":"rtl","overridden":false"#,
             ),
             (
-                Event::Failsafe { reason: None, action: "none", overridden: false },
+                Event::Failsafe {
+                    reason: None,
+                    action: "none",
+                    overridden: false,
+                },
                 r#""reason":null,"action":"none","overridden":false"#,
             ),
             (
-                Event::Control { by: Some("mqtt alice".into()), from: None },
+                Event::Control {
+                    by: Some("mqtt alice".into()),
+                    from: None,
+                },
                 r#""by":"mqtt alice","from":null"#,
             ),
             (Event::Battery { percent: 19.94 }, r#""percent":19.9"#),
@@ -124,7 +141,10 @@ mod tests {
             (Event::Link { up: false }, r#""state":"lost""#),
             (Event::Uplink { up: false }, r#""state":"down""#),
             (
-                Event::Log { level: "warning", msg: "battery low: \"rtl\"".into() },
+                Event::Log {
+                    level: "warning",
+                    msg: "battery low: \"rtl\"".into(),
+                },
                 r#""level":"warning","msg":"battery low: \"rtl\"""#,
             ),
         ];

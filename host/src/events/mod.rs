@@ -13,12 +13,14 @@
 //! waits for a subscriber.
 
 pub mod json;
+pub mod outbox;
 
 use std::sync::{Arc, Mutex, PoisonError};
 
 use tokio::sync::broadcast;
 
 pub use json::{gap, render};
+pub use outbox::{Hold, Outbox};
 
 /// Events a subscriber's queue holds before the oldest are dropped.
 pub const QUEUE: usize = 256;
@@ -221,6 +223,14 @@ impl Subscriber {
     }
 }
 
+/// Now, ms since the Unix epoch (0 for a clock before 1970): events and
+/// gaps are stamped like responses.
+pub fn now_ms() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+}
+
 /// A boot id: 16 hex digits from the OS's randomness, distinct per run.
 fn boot_id() -> String {
     let mut bytes = [0u8; 8];
@@ -250,10 +260,20 @@ mod tests {
         let mut a = bus.subscribe();
         let mut b = bus.subscribe();
         bus.publish(Event::Armed { armed: true }, 10);
-        bus.publish(Event::Fsm { from: "armed", to: "takeoff" }, 11);
+        bus.publish(
+            Event::Fsm {
+                from: "armed",
+                to: "takeoff",
+            },
+            11,
+        );
         for s in [&mut a, &mut b] {
-            let Next::Event(first) = s.next().await else { panic!() };
-            let Next::Event(second) = s.next().await else { panic!() };
+            let Next::Event(first) = s.next().await else {
+                panic!()
+            };
+            let Next::Event(second) = s.next().await else {
+                panic!()
+            };
             assert_eq!((first.seq, second.seq), (1, 2));
             assert_eq!(
                 &*first.json,
@@ -270,7 +290,9 @@ mod tests {
             bus.publish(Event::Armed { armed: i % 2 == 0 }, i);
         }
         assert_eq!(slow.next().await, Next::Gap(10));
-        let Next::Event(e) = slow.next().await else { panic!() };
+        let Next::Event(e) = slow.next().await else {
+            panic!()
+        };
         assert_eq!(e.seq, 11);
     }
 

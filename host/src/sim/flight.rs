@@ -16,6 +16,7 @@ use std::collections::VecDeque;
 use std::f64::consts::PI;
 
 use super::error::{SimError, SimResult};
+use crate::events::Event;
 use crate::vehicle::Ned;
 
 /// Longest simulated step, s.
@@ -184,6 +185,44 @@ pub(crate) struct Active {
     pub(crate) overridden: bool,
 }
 
+impl Active {
+    /// The reason as `state.failsafe` and the failsafe event name it.
+    pub(crate) fn source(self) -> &'static str {
+        match self.reason {
+            Failsafe::BatteryLow => "battery_low",
+            Failsafe::BatteryEmpty => "battery_empty",
+        }
+    }
+
+    /// What the vehicle does.
+    pub(crate) fn action(self) -> lluav_core::Action {
+        match self.reason {
+            Failsafe::BatteryLow => lluav_core::Action::Rtl,
+            Failsafe::BatteryEmpty => lluav_core::Action::Land,
+        }
+    }
+
+    fn told(self) -> Event {
+        Event::Failsafe {
+            reason: Some(self.source().to_owned()),
+            action: self.action().name(),
+            overridden: self.overridden,
+        }
+    }
+}
+
+/// The battery's band for events: 0 at or above `low`, one more for each
+/// 10 % below it, `i32::MAX` when empty.
+fn band(battery: f64, low: f64) -> i32 {
+    if battery <= 0.0 {
+        i32::MAX
+    } else if battery >= low {
+        0
+    } else {
+        1 + ((low - battery) / 10.0).floor() as i32
+    }
+}
+
 /// Totals since start, for `statics`.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Totals {
@@ -210,6 +249,11 @@ pub(crate) struct Flight {
     /// The failsafe of this flight, until the vehicle is disarmed on the
     /// ground: each reason starts once, on entry.
     failsafe: Option<Active>,
+    /// The battery's band: 0 above `low_battery`, then one more for each
+    /// 10 % below it, `i32::MAX` empty (a change is told).
+    band: i32,
+    /// What happened, to be told (DESIGN.md, "Events").
+    news: Vec<Event>,
     /// Waypoints reached since takeoff, for `mrtl`.
     trail: Vec<Ned>,
     events: Vec<RouteEvent>,
@@ -229,6 +273,8 @@ impl Default for Flight {
             next_route: 1,
             battery: 100.0,
             failsafe: None,
+            band: 0,
+            news: Vec::new(),
             trail: Vec::new(),
             events: Vec::new(),
             totals: Totals::default(),
@@ -274,6 +320,19 @@ impl Flight {
     pub(crate) fn override_failsafe(&mut self) {
         if let Some(f) = self.failsafe.as_mut() {
             f.overridden = true;
+            let told = f.told();
+            self.news.push(told);
+        }
+    }
+
+    /// The failsafe is over (disarmed on the ground): told once.
+    fn end_failsafe(&mut self) {
+        if self.failsafe.take().is_some() {
+            self.news.push(Event::Failsafe {
+                reason: None,
+                action: "none",
+                overridden: false,
+            });
         }
     }
     /// Waypoint legs left in the active route.
@@ -288,9 +347,30 @@ impl Flight {
 
     /// Enters `mode`; a route the old mode was flying is dropped.
     fn enter(&mut self, mode: Mode) {
-        if let Some(r) = std::mem::replace(&mut self.mode, mode).route() {
+        if let Some(r) = self.switch(mode).route() {
             self.events.push(RouteEvent::Dropped { route: r.id });
         }
+    }
+
+    /// Enters `mode` and tells the change of state (and of arming);
+    /// returns the mode left. Every change of mode goes through here.
+    fn switch(&mut self, mode: Mode) -> Mode {
+        let old = std::mem::replace(&mut self.mode, mode);
+        let (from, to) = (old.name(), self.mode.name());
+        if from != to {
+            self.news.push(Event::Fsm { from, to });
+        }
+        if old.armed() != self.mode.armed() {
+            self.news.push(Event::Armed {
+                armed: self.mode.armed(),
+            });
+        }
+        old
+    }
+
+    /// What happened since the last call, in order.
+    pub(crate) fn drain_news(&mut self, out: &mut Vec<Event>) {
+        out.append(&mut self.news);
     }
 
     fn require_airborne(&self) -> SimResult {
@@ -352,7 +432,7 @@ impl Flight {
     pub(crate) fn sleep(&mut self) -> bool {
         let disarmed = matches!(self.mode, Mode::Disarmed { .. });
         if disarmed {
-            self.mode = Mode::Sleep;
+            self.switch(Mode::Sleep);
         }
         disarmed
     }
@@ -360,7 +440,7 @@ impl Flight {
     /// Wakes up from sleep; otherwise nothing changes.
     pub(crate) fn wakeup(&mut self) {
         if self.mode == Mode::Sleep {
-            self.mode = Mode::LANDED;
+            self.switch(Mode::LANDED);
         }
     }
 
@@ -445,7 +525,7 @@ impl Flight {
                 self.vel = Ned::default();
                 if *on_ground_s >= DISARM_DELAY_S {
                     tracing::info!("landed: disarmed");
-                    self.mode = Mode::LANDED;
+                    self.switch(Mode::LANDED);
                 }
             }
             Mode::Takeoff => self.climb(dt, lim),
@@ -459,7 +539,14 @@ impl Flight {
             self.check_battery(lim);
         } else {
             // Disarmed on the ground: whatever failsafe there was is over.
-            self.failsafe = None;
+            self.end_failsafe();
+        }
+        let band = band(self.battery, lim.low_battery);
+        if band != self.band {
+            self.band = band;
+            self.news.push(Event::Battery {
+                percent: self.battery,
+            });
         }
     }
 
@@ -471,7 +558,7 @@ impl Flight {
         }
         if lim.autosleep_after.is_some_and(|t| idle_s >= t) {
             tracing::info!("auto-sleep after {idle_s:.0} s disarmed");
-            self.mode = Mode::Sleep;
+            self.switch(Mode::Sleep);
         }
     }
 
@@ -482,7 +569,7 @@ impl Flight {
                 altitude = format!("{:.2}", self.pos.up()),
                 "takeoff complete: hovering"
             );
-            self.mode = Mode::Hover;
+            self.switch(Mode::Hover);
         }
     }
 
@@ -492,7 +579,7 @@ impl Flight {
         if self.pos.z >= -1e-6 {
             self.pos.z = 0.0;
             self.vel = Ned::default();
-            self.mode = Mode::Armed { on_ground_s: 0.0 };
+            self.switch(Mode::Armed { on_ground_s: 0.0 });
         }
     }
 
@@ -524,10 +611,12 @@ impl Flight {
         if self.failsafe.is_some_and(graver) {
             return false;
         }
-        self.failsafe = Some(Active {
+        let active = Active {
             reason,
             overridden: false,
-        });
+        };
+        self.failsafe = Some(active);
+        self.news.push(active.told());
         true
     }
 
@@ -570,9 +659,11 @@ impl Flight {
     /// Ends the route whose last target was `end`: hovers where it is, or
     /// lands on `end`.
     fn finish_route(&mut self, lim: &Limits, end: Ned) {
-        let Some(route) = std::mem::replace(&mut self.mode, Mode::Hover).route().cloned() else {
+        let Some(route) = self.mode.route().cloned() else {
             return;
         };
+        // Finished, not dropped: no `Dropped` for it.
+        self.switch(Mode::Hover);
         self.events.push(RouteEvent::Finished { route: route.id });
         self.sp = self.pos;
         if route.then == Then::Land {

@@ -29,10 +29,11 @@ use std::io;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use lluav_core::{Action, Command, CommandId, Context, Failure, Fields, Section};
+use lluav_core::{Command, CommandId, Context, Failure, Fields, Section};
 
+use crate::events::Event;
 use crate::files::{Files, Saved};
-use crate::vehicle::{Progress, Refusal, Snapshot, Vehicle};
+use crate::vehicle::{Progress, Refusal, Snapshot, TICK, Vehicle};
 use camera::Camera;
 use devices::Devices;
 use error::{SimError, SimResult};
@@ -215,14 +216,31 @@ impl Vehicle for Simulator {
 
     fn failsafe(&self) -> Option<lluav_core::Failsafe> {
         let active = self.flight.failsafe()?;
-        let (source, action) = match active.reason {
-            flight::Failsafe::BatteryLow => ("battery_low", Action::Rtl),
-            flight::Failsafe::BatteryEmpty => ("battery_empty", Action::Land),
-        };
         Some(lluav_core::Failsafe {
             overridden: active.overridden,
-            ..lluav_core::Failsafe::new(source, action)
+            ..lluav_core::Failsafe::new(active.source(), active.action())
         })
+    }
+
+    fn next_tick(&self) -> Option<Duration> {
+        let charging = self.devices.charging() && self.flight.battery() < 100.0;
+        match self.flight.mode() {
+            _ if charging => Some(TICK),
+            flight::Mode::Sleep => None,
+            &flight::Mode::Disarmed { idle_s } => self.switches.autosleep.then(|| {
+                let left = (self.params.f64(Key::AutosleepAfter) - idle_s).max(0.0) / self.speed;
+                Duration::from_secs_f64(left).max(TICK)
+            }),
+            _ => Some(TICK),
+        }
+    }
+
+    fn drain_events(&mut self, out: &mut Vec<Event>) {
+        // A run's progress first, then the FSM it moves: `reached` and
+        // `completed` before `mission -> hover`, `started` before
+        // `hover -> mission`.
+        self.missions.drain_news(out);
+        self.flight.drain_news(out);
     }
 
     fn override_failsafe(&mut self) -> Result<(), Failure> {

@@ -26,6 +26,9 @@ use lluav_core::{Command, Context, Failsafe, Failure, Fields, Ret, SessionId};
 
 use crate::files::{self, Files};
 
+/// How often a vehicle that is doing something is advanced.
+pub const TICK: Duration = Duration::from_millis(50);
+
 /// A point or vector in NED metres (x north, y east, z down).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Ned {
@@ -152,6 +155,20 @@ pub trait Vehicle: Send + 'static {
 
     /// Advances the vehicle by `dt` of wall time.
     fn tick(&mut self, dt: Duration);
+
+    /// How soon the vehicle must be advanced again for what it does to go
+    /// on (a climb, a charge, an auto-sleep countdown); `None` while
+    /// nothing changes without a command. An idle vehicle costs nothing:
+    /// the daemon then advances it only when a request comes.
+    fn next_tick(&self) -> Option<Duration> {
+        Some(TICK)
+    }
+
+    /// What happened since the last call, as events (DESIGN.md,
+    /// "Events"), in the order it happened.
+    fn drain_events(&mut self, out: &mut Vec<crate::events::Event>) {
+        let _ = out;
+    }
 
     /// Persists anything pending.
     fn flush(&mut self) -> io::Result<()> {
