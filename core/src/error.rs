@@ -44,18 +44,19 @@ pub enum ArgError {
     /// A field that should be a number is not a decimal number (`nan`
     /// and `inf` are not).
     NotANumber,
-    /// A number is too large for its type, or a hand-built one is NaN or
-    /// infinite.
+    /// A hand-built number is NaN or infinite.
     NotFinite,
-    /// A number is outside its stated range.
-    OutOfRange,
+    /// A value is outside its range (a number too large for its type
+    /// included); the reason names the range.
+    OutOfRange(Bound),
     /// A setpoint at or below the ground (`z >= 0`, NED from home).
     AtOrBelowGround,
     /// A flag is not exactly `0` or `1`.
     NotAFlag,
     /// A name or path could escape its directory or holds forbidden bytes.
     UnsafePath,
-    /// A text field holds control characters or is too long.
+    /// A text field holds control or format characters (Unicode Cc, Cf)
+    /// or ends with a space.
     BadText,
     /// A list holds more items than its fixed capacity.
     TooMany,
@@ -63,16 +64,57 @@ pub enum ArgError {
     BadJson,
     /// A new password breaks the password rules.
     BadPassword,
+    /// A new password is one of the special login values (admin, logout).
+    SpecialPassword,
     /// [`crate::Command::new`] got arguments of another command's grammar.
     WrongGrammar,
 }
 
 impl ArgError {
-    /// What a client must be told beyond the usage line, if anything.
+    /// What a client must be told instead of the usage line, if anything:
+    /// every range refusal names the range (DESIGN.md, "Request grammar").
     pub fn reason(self) -> Option<&'static str> {
         match self {
             ArgError::AtOrBelowGround => Some(messages::GROUND),
+            ArgError::OutOfRange(bound) => Some(bound.reason()),
+            ArgError::BadText => Some(messages::BAD_TEXT),
+            ArgError::BadPassword => Some(messages::BAD_PASSWORD),
+            ArgError::SpecialPassword => Some(messages::SPECIAL_PASSWORD),
             _ => None,
+        }
+    }
+}
+
+/// The range a value left: each names itself in the refusal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Bound {
+    /// An angle, -90..90 degrees.
+    Angle,
+    /// A number that may not be negative.
+    NonNegative,
+    /// A PWM value, 0..65535.
+    Pwm,
+    /// An id or count: an unsigned 32-bit integer.
+    Integer,
+    /// A number a 32-bit float can hold.
+    Float,
+    /// Free text (a plan): at most [`crate::parse::MAX_TEXT_LEN`] bytes.
+    Text,
+    /// A task name: at most [`crate::parse::MAX_TASK_NAME_LEN`] bytes.
+    TaskName,
+}
+
+impl Bound {
+    /// The refusal's reason, naming the range.
+    pub fn reason(self) -> &'static str {
+        match self {
+            Bound::Angle => messages::RANGE_ANGLE,
+            Bound::NonNegative => messages::RANGE_NON_NEGATIVE,
+            Bound::Pwm => messages::RANGE_PWM,
+            Bound::Integer => messages::RANGE_INTEGER,
+            Bound::Float => messages::RANGE_FLOAT,
+            Bound::Text => messages::RANGE_TEXT,
+            Bound::TaskName => messages::RANGE_TASK_NAME,
         }
     }
 }
@@ -148,12 +190,14 @@ impl Failure {
         }
     }
 
-    /// ret -2 with the command's usage line, as a parse error answers:
-    /// `Invalid arguments, usage: ...`. Written without `core::fmt`, which
-    /// an MCU would otherwise link for this one message.
-    pub(crate) fn usage(id: CommandId) -> Self {
-        let mut f = Failure::new(Ret::InvalidArgs, messages::INVALID_ARGS_PREFIX);
-        push_truncated(&mut f.msg, id.spec().usage);
+    /// ret -2 as a parse error of `id` with `e` answers: `Invalid
+    /// arguments: <reason>`, or `Invalid arguments, usage: ...` for an
+    /// error without one. Written without `core::fmt`, which an MCU would
+    /// otherwise link for this one message.
+    pub(crate) fn invalid(id: CommandId, e: ArgError) -> Self {
+        let [prefix, text] = ParseError::InvalidArgs(id, e).parts();
+        let mut f = Failure::new(Ret::InvalidArgs, prefix);
+        push_truncated(&mut f.msg, text);
         f
     }
 
@@ -232,6 +276,27 @@ pub mod messages {
     /// A setpoint at or below the ground.
     pub const GROUND: &str =
         "setpoint at or below the ground (z >= 0; up is negative z): use land to descend";
+    /// An angle out of its range.
+    pub const RANGE_ANGLE: &str = "angle out of range -90..90";
+    /// A negative number where none may be.
+    pub const RANGE_NON_NEGATIVE: &str = "number out of range: 0 or more";
+    /// A PWM value out of its range.
+    pub const RANGE_PWM: &str = "PWM value out of range 0..65535";
+    /// An id or count too large.
+    pub const RANGE_INTEGER: &str = "integer out of range 0..4294967295";
+    /// A number too large for a 32-bit float.
+    pub const RANGE_FLOAT: &str = "number out of range -3.4028235e38..3.4028235e38 (a 32-bit float)";
+    /// Free text too long (the number is `parse::MAX_TEXT_LEN`).
+    pub const RANGE_TEXT: &str = "text out of range: at most 4096 bytes";
+    /// A task name too long (the number is `parse::MAX_TASK_NAME_LEN`).
+    pub const RANGE_TASK_NAME: &str = "task name out of range: at most 256 bytes";
+    /// Text a console could be spoofed with.
+    pub const BAD_TEXT: &str =
+        "text holds a control or format character (Unicode Cc, Cf) or ends with a space";
+    /// A new password that breaks the rules.
+    pub const BAD_PASSWORD: &str = "a password is 1 to 32 printable ASCII characters, no space";
+    /// A new password that is a special login value.
+    pub const SPECIAL_PASSWORD: &str = "a special login value (admin or logout) cannot be the password";
     /// Not logged in.
     pub const LOGIN_FIRST: &str = "Login first!";
     /// Wrong password.

@@ -12,11 +12,11 @@
 
 use crate::backend::{Backend, Clock, Context, Step, Ticket};
 use crate::command::{Args, Command};
-use crate::error::{Failure, ParseError, Refusal, Ret, messages};
+use crate::error::{ArgError, Failure, ParseError, Refusal, Ret, messages};
 use crate::gate;
 use crate::parse::{self, Split};
 use crate::response::{self, Fields};
-use crate::session::{Auth, LoginOutcome, Peer, Session, SessionId};
+use crate::session::{Auth, AuthError, LoginOutcome, Peer, Session, SessionId};
 use crate::table::{CommandId, TABLE, lookup};
 use crate::throttle::{DefaultSlots, Slots};
 
@@ -134,6 +134,8 @@ enum Answer<'a> {
     Failed(u8, Failure, Option<usize>),
     /// The backend is waiting for something outside.
     Pending(CommandId, Ticket),
+    /// A login refused by the throttle, and when to try again.
+    Throttled(u8, u32),
 }
 
 impl<'a> Answer<'a> {
@@ -280,7 +282,11 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         };
         let mut fields = Fields::after_head(out, cmd, now);
         let result = self.run(session, &command, now, &mut fields, close);
-        Answer::settled(spec.id, result, &fields)
+        match result {
+            Err(Throttled(secs)) => Answer::Throttled(cmd, secs),
+            Err(Failed(f)) => Answer::settled(spec.id, Err(f), &fields),
+            Ok(step) => Answer::settled(spec.id, Ok(step), &fields),
+        }
     }
 
     /// Runs a command that passed every gate.
@@ -291,7 +297,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         now: i64,
         out: &mut Fields<'_>,
         close: &mut Option<CloseCode>,
-    ) -> Result<Step, Failure> {
+    ) -> Result<Step, Unrun> {
         match (command.id(), command.args()) {
             (CommandId::Login, Args::Secret(attempt)) => self.login(session, attempt, now, out, close)?,
             (CommandId::Help, _) => {
@@ -303,14 +309,14 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             }
             (CommandId::AdminLock | CommandId::AdminUnlock, _) => {
                 let on = command.id() == CommandId::AdminLock;
-                self.backend.lock_mode_changed(on)?;
+                self.backend.lock_mode_changed(on).map_err(Failed)?;
                 self.auth.set_lock_mode(on);
                 out.bool("lock_mode", self.auth.lock_mode());
             }
-            (CommandId::Passwd, Args::NewPassword(new)) => self.passwd(session, new)?,
+            (CommandId::Passwd, Args::NewPassword(new)) => self.passwd(session, new).map_err(Failed)?,
             _ => {
                 let ctx = self.context(session, now);
-                return self.backend.execute(command, &ctx, out);
+                return self.backend.execute(command, &ctx, out).map_err(Failed);
             }
         }
         Ok(Step::Done)
@@ -323,14 +329,14 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         now: i64,
         out: &mut Fields<'_>,
         close: &mut Option<CloseCode>,
-    ) -> Result<(), Failure> {
+    ) -> Result<(), Unrun> {
         match self.auth.login(session, attempt, now) {
-            LoginOutcome::Throttled => return Err(Failure::failed(messages::THROTTLED)),
+            LoginOutcome::Throttled { retry_after_s } => return Err(Throttled(retry_after_s)),
             LoginOutcome::Wrong { close: shut } => {
                 if shut {
                     *close = Some(CloseCode::Policy);
                 }
-                return Err(Failure::failed(messages::WRONG_PASSWORD));
+                return Err(Failed(Failure::failed(messages::WRONG_PASSWORD)));
             }
             LoginOutcome::User | LoginOutcome::Admin | LoginOutcome::LoggedOut => {}
         }
@@ -340,7 +346,13 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
     }
 
     fn passwd(&mut self, session: &mut Session, new: &str) -> Result<(), Failure> {
-        let bad = |_| Failure::usage(CommandId::Passwd);
+        let bad = |e| {
+            let why = match e {
+                AuthError::BadPassword => ArgError::BadPassword,
+                AuthError::Ambiguous => ArgError::SpecialPassword,
+            };
+            Failure::invalid(CommandId::Passwd, why)
+        };
         self.auth.check_password(new).map_err(bad)?;
         self.backend.password_changed(new)?;
         self.auth.set_password(new).map_err(bad)?;
@@ -348,6 +360,16 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         Ok(())
     }
 }
+
+/// Why a command that passed the gates did not run.
+enum Unrun {
+    /// It failed: answered with the failure.
+    Failed(Failure),
+    /// A login the throttle refused: answered with when to retry.
+    Throttled(u32),
+}
+
+use Unrun::{Failed, Throttled};
 
 /// Writes `answer` into `out` (or records a pending one in `session`).
 fn write<'o>(
@@ -368,6 +390,14 @@ fn write<'o>(
             // client's; say so rather than send a message that isn't there.
             (true, None) => response::write_error(out, Ret::Unhandled, cmd, ts, &[messages::UNHANDLED]),
         },
+        Answer::Throttled(cmd, secs) => response::write_error_with(
+            out,
+            Ret::Failed,
+            cmd,
+            ts,
+            &[messages::THROTTLED],
+            ("retry_after_s", secs),
+        ),
         Answer::Pending(id, ticket) => {
             session.set_pending(Some((ticket, id)));
             return Outcome::Pending(ticket, out);

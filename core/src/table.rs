@@ -34,8 +34,11 @@ pub enum Grammar {
     OptName,
     /// A relative path made of single path components joined by `/`.
     Path,
-    /// Free text: the rest of the frame.
+    /// Free text: the rest of the frame, no control or format characters
+    /// (Unicode Cc, Cf), at most 4096 bytes.
     Text,
+    /// A task name: text as [`Grammar::Text`], at most 256 bytes.
+    TaskName,
     /// A login password: the rest of the frame.
     Secret,
     /// A new login password: 1–32 printable ASCII characters, no space.
@@ -235,7 +238,7 @@ command_table! {
         38 DumpMissionresult "dump_missionresult" OptCount [] "dump_missionresult [ext_id]" "Dump a mission result.";
         39 DumpMissionlist "dump_missionlist" None [] "dump_missionlist" "Dump the short mission request list.";
         40 AbortReport "abort_report" OptCount [] "abort_report [abort_id]" "Abort or finish a mission report.";
-        41 SetTaskname "set_taskname" Text [] "set_taskname name" "Set the current task name.";
+        41 SetTaskname "set_taskname" TaskName [] "set_taskname name" "Set the current task name.";
     }
     Map {
         42 Savemap "savemap" Name [NO_ARM NO_LOCK] "savemap name" "Save the current map.";

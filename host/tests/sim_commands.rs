@@ -31,6 +31,7 @@ fn sample_args(spec: &Spec) -> &'static str {
         Grammar::Path if spec.id == CommandId::SetMappath => "t1",
         Grammar::Path => "missions/m.json",
         Grammar::Text => "p1",
+        Grammar::TaskName => "survey east",
         Grammar::Secret | Grammar::NewPassword => "newpass1",
         Grammar::ParamName => "takeoff_alt",
         Grammar::SetParam => "takeoff_alt:3",

@@ -98,6 +98,7 @@ fn largest_args(name: &str, grammar: Grammar, paths: &Paths) -> String {
         (_, Grammar::Name | Grammar::OptName) => format!("q{}", quotes(127)),
         (_, Grammar::Path) => paths.map.clone(),
         (_, Grammar::Text) => quotes(4096),
+        (_, Grammar::TaskName) => quotes(256),
         (_, Grammar::Secret) => "1025".into(),
         (_, Grammar::NewPassword) => "P".repeat(32),
         (_, Grammar::ParamName) => "geofence_radius".into(),

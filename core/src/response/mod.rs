@@ -16,5 +16,5 @@ mod fields;
 mod json;
 
 pub use envelope::MIN_RESPONSE_CAPACITY;
-pub(crate) use envelope::{finish, write_error};
+pub(crate) use envelope::{finish, write_error, write_error_with};
 pub use fields::{Fields, Items};

@@ -5,9 +5,10 @@
 //! that reports it fits lluavd's 64 KiB response buffer: a mission holds
 //! at most [`crate::vehicle::mission::MAX_WAYPOINTS`] waypoints (`mw_list`
 //! lists one whole), at most [`MAX_MISSIONS`] missions are kept
-//! (`dump_missionlist` lists them all, paths included), a plan is at most
-//! [`MAX_PLAN`] bytes and a task name [`MAX_TASKNAME`] (`state` reports
-//! both).
+//! (`dump_missionlist` lists them all, paths included), and the core's
+//! grammar keeps a plan within [`lluav_core::parse::MAX_TEXT_LEN`] bytes
+//! and a task name within [`lluav_core::parse::MAX_TASK_NAME_LEN`]
+//! (`state` reports both).
 
 use lluav_core::{Args, Command, CommandId, Fields};
 
@@ -20,10 +21,6 @@ use crate::vehicle::mission::Waypoint;
 pub(crate) const MAX_MISSIONS: usize = 16;
 /// Most runs and abort reports kept; the oldest go first.
 const MAX_KEPT: usize = 64;
-/// Longest plan, bytes.
-pub(crate) const MAX_PLAN: usize = 4096;
-/// Longest task name, bytes.
-pub(crate) const MAX_TASKNAME: usize = 256;
 
 /// Where a mission came from.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -148,14 +145,6 @@ fn same_slot(a: &Mission, b: &Mission) -> bool {
     }
 }
 
-/// Refuses `text` longer than `most` bytes (-2).
-fn at_most(what: &str, text: &str, most: usize) -> SimResult {
-    if text.len() > most {
-        return Err(SimError::Refused(format!("{what} longer than {most} bytes")));
-    }
-    Ok(())
-}
-
 fn push_bounded<T>(v: &mut Vec<T>, item: T, most: usize) {
     if v.len() >= most {
         v.remove(0);
@@ -170,7 +159,6 @@ impl Missions {
     pub(crate) fn run(&mut self, cmd: &Command<'_>, out: &mut Fields<'_>) -> SimResult {
         match (cmd.id(), cmd.args()) {
             (CommandId::Plan, Args::Text(plan)) => {
-                at_most("plan", plan, MAX_PLAN)?;
                 if self.plan_locked {
                     return Err(SimError::PlanLocked);
                 }
@@ -188,8 +176,7 @@ impl Missions {
                 out.bool("obs_mission", on);
             }
             (CommandId::DumpMissionresult, &Args::OptCount(ext_id)) => self.write_result(ext_id, out)?,
-            (CommandId::SetTaskname, Args::Text(name)) => {
-                at_most("task name", name, MAX_TASKNAME)?;
+            (CommandId::SetTaskname, Args::TaskName(name)) => {
                 self.taskname = Some((*name).to_owned());
                 out.str("taskname", name);
             }
