@@ -15,7 +15,7 @@ use super::geo::Global;
 use super::protocol::mission_item;
 use crate::vehicle::Ned;
 
-/// Most missions kept; the oldest go first.
+/// Most missions kept; the oldest go first, never the one running.
 const MAX_KEPT: usize = 64;
 
 /// A waypoint of a submitted mission.
@@ -92,10 +92,22 @@ impl Missions {
             first_seq,
         });
         self.submitted.retain(|m| m.ext_id != mission.ext_id);
-        if self.submitted.len() == MAX_KEPT {
-            self.submitted.pop_front();
+        let running = self.running();
+        if self.submitted.len() >= MAX_KEPT
+            && let Some(oldest) = self.submitted.iter().position(|m| Some(m.ext_id) != running)
+        {
+            self.submitted.remove(oldest);
         }
         self.submitted.push_back(mission);
+    }
+
+    /// The external id of the mission whose run has not ended, if any (the
+    /// caller knows whether the vehicle still flies it).
+    pub fn running(&self) -> Option<u32> {
+        self.run
+            .as_ref()
+            .filter(|r| r.status == Status::Running)
+            .map(|r| r.plan.ext_id)
     }
 
     /// `plan` is what the autopilot holds now.

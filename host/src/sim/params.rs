@@ -252,7 +252,11 @@ impl Params {
             (CommandId::SetParam, Args::SetParam { name, value }) => {
                 let v = self.set(name, value)?;
                 tracing::info!(param = name, value, "parameter set");
-                out.object("param", |o| v.write(o, name)).bool("unsaved", true);
+                // As get_param and save_param 0 say: setting the saved value
+                // back leaves nothing unsaved.
+                let (def, _) = self.get(name)?;
+                out.object("param", |o| v.write(o, name))
+                    .bool("unsaved", self.unsaved(def));
             }
             (CommandId::ResetParam, _) => {
                 self.reset();
