@@ -287,9 +287,9 @@ pub mod messages {
     /// A number too large for a 32-bit float.
     pub const RANGE_FLOAT: &str = "number out of range -3.4028235e38..3.4028235e38 (a 32-bit float)";
     /// Free text too long (the number is `parse::MAX_TEXT_LEN`).
-    pub const RANGE_TEXT: &str = "text out of range: at most 4096 bytes";
+    pub const RANGE_TEXT: &str = "text longer than 4096 bytes";
     /// A task name too long (the number is `parse::MAX_TASK_NAME_LEN`).
-    pub const RANGE_TASK_NAME: &str = "task name out of range: at most 256 bytes";
+    pub const RANGE_TASK_NAME: &str = "task name longer than 256 bytes";
     /// Text a console could be spoofed with.
     pub const BAD_TEXT: &str =
         "text holds a control or format character (Unicode Cc, Cf) or ends with a space";
