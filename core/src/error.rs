@@ -74,19 +74,19 @@ impl ArgError {
     /// What a client must be told instead of the usage line, if anything:
     /// every range refusal names the range (DESIGN.md, "Request grammar").
     pub fn reason(self) -> Option<&'static str> {
-        match self {
-            ArgError::AtOrBelowGround => Some(messages::GROUND),
-            ArgError::OutOfRange(bound) => Some(bound.reason()),
-            ArgError::BadText => Some(messages::BAD_TEXT),
-            ArgError::BadPassword => Some(messages::BAD_PASSWORD),
-            ArgError::SpecialPassword => Some(messages::SPECIAL_PASSWORD),
-            _ => None,
-        }
+        let at = match self {
+            ArgError::AtOrBelowGround => 0,
+            ArgError::SpecialPassword => 1,
+            ArgError::OutOfRange(bound) => 2 + bound as usize,
+            _ => return None,
+        };
+        messages::REASONS.get(at).copied()
     }
 }
 
 /// The range a value left: each names itself in the refusal.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
 pub enum Bound {
     /// An angle, -90..90 degrees.
     Angle,
@@ -107,15 +107,7 @@ pub enum Bound {
 impl Bound {
     /// The refusal's reason, naming the range.
     pub fn reason(self) -> &'static str {
-        match self {
-            Bound::Angle => messages::RANGE_ANGLE,
-            Bound::NonNegative => messages::RANGE_NON_NEGATIVE,
-            Bound::Pwm => messages::RANGE_PWM,
-            Bound::Integer => messages::RANGE_INTEGER,
-            Bound::Float => messages::RANGE_FLOAT,
-            Bound::Text => messages::RANGE_TEXT,
-            Bound::TaskName => messages::RANGE_TASK_NAME,
-        }
+        ArgError::OutOfRange(self).reason().unwrap_or("")
     }
 }
 
@@ -163,6 +155,8 @@ pub struct Failure {
     msg: heapless::String<FAILURE_MSG_CAPACITY>,
     /// The message is in the response buffer ([`crate::Fields::fail`]).
     written: bool,
+    /// Seconds until a refused login may be tried again (0: not one).
+    retry_after_s: u32,
 }
 
 impl Failure {
@@ -173,6 +167,7 @@ impl Failure {
             ret,
             msg: heapless::String::new(),
             written: false,
+            retry_after_s: 0,
         };
         push_truncated(&mut f.msg, msg);
         f
@@ -187,6 +182,7 @@ impl Failure {
             ret,
             msg: w.0,
             written: false,
+            retry_after_s: 0,
         }
     }
 
@@ -208,7 +204,22 @@ impl Failure {
             ret,
             msg: heapless::String::new(),
             written: true,
+            retry_after_s: 0,
         }
+    }
+
+    /// A login the throttle refused, and when to try again (at least 1 s:
+    /// 0 would mean it is not one).
+    pub(crate) fn throttled(retry_after_s: u32) -> Self {
+        Failure {
+            retry_after_s,
+            ..Failure::failed(messages::THROTTLED)
+        }
+    }
+
+    /// Seconds until a refused login may be tried again, if it is one.
+    pub(crate) fn retry_after_s(&self) -> Option<u32> {
+        (self.retry_after_s > 0).then_some(self.retry_after_s)
     }
 
     /// Whether the message is in the response buffer rather than here.
@@ -276,27 +287,21 @@ pub mod messages {
     /// A setpoint at or below the ground.
     pub const GROUND: &str =
         "setpoint at or below the ground (z >= 0; up is negative z): use land to descend";
-    /// An angle out of its range.
-    pub const RANGE_ANGLE: &str = "angle out of range -90..90";
-    /// A negative number where none may be.
-    pub const RANGE_NON_NEGATIVE: &str = "number out of range: 0 or more";
-    /// A PWM value out of its range.
-    pub const RANGE_PWM: &str = "PWM value out of range 0..65535";
-    /// An id or count too large.
-    pub const RANGE_INTEGER: &str = "integer out of range 0..4294967295";
-    /// A number too large for a 32-bit float.
-    pub const RANGE_FLOAT: &str = "number out of range -3.4028235e38..3.4028235e38 (a 32-bit float)";
-    /// Free text too long (the number is `parse::MAX_TEXT_LEN`).
-    pub const RANGE_TEXT: &str = "text longer than 4096 bytes";
-    /// A task name too long (the number is `parse::MAX_TASK_NAME_LEN`).
-    pub const RANGE_TASK_NAME: &str = "task name longer than 256 bytes";
-    /// Text a console could be spoofed with.
-    pub const BAD_TEXT: &str =
-        "text holds a control or format character (Unicode Cc, Cf) or ends with a space";
-    /// A new password that breaks the rules.
-    pub const BAD_PASSWORD: &str = "a password is 1 to 32 printable ASCII characters, no space";
-    /// A new password that is a special login value.
-    pub const SPECIAL_PASSWORD: &str = "a special login value (admin or logout) cannot be the password";
+    /// The reasons [`super::ArgError::reason`] gives, in its order: a
+    /// setpoint at or below the ground, a special login value as a new
+    /// password, then one per [`super::Bound`], in its order. One table,
+    /// so that a firmware links one lookup for all of them.
+    pub const REASONS: [&str; 9] = [
+        GROUND,
+        "the admin and logout values cannot be passwords",
+        "angle out of range -90..90",
+        "number below 0",
+        "PWM value out of range 0..65535",
+        "integer out of range 0..4294967295",
+        "number beyond a 32-bit float (3.4028235e38)",
+        "text longer than 4096 bytes",
+        "task name longer than 256 bytes",
+    ];
     /// Not logged in.
     pub const LOGIN_FIRST: &str = "Login first!";
     /// Wrong password.

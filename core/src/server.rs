@@ -134,8 +134,6 @@ enum Answer<'a> {
     Failed(u8, Failure, Option<usize>),
     /// The backend is waiting for something outside.
     Pending(CommandId, Ticket),
-    /// A login refused by the throttle, and when to try again.
-    Throttled(u8, u32),
 }
 
 impl<'a> Answer<'a> {
@@ -282,11 +280,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         };
         let mut fields = Fields::after_head(out, cmd, now);
         let result = self.run(session, &command, now, &mut fields, close);
-        match result {
-            Err(Throttled(secs)) => Answer::Throttled(cmd, secs),
-            Err(Failed(f)) => Answer::settled(spec.id, Err(f), &fields),
-            Ok(step) => Answer::settled(spec.id, Ok(step), &fields),
-        }
+        Answer::settled(spec.id, result, &fields)
     }
 
     /// Runs a command that passed every gate.
@@ -297,7 +291,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         now: i64,
         out: &mut Fields<'_>,
         close: &mut Option<CloseCode>,
-    ) -> Result<Step, Unrun> {
+    ) -> Result<Step, Failure> {
         match (command.id(), command.args()) {
             (CommandId::Login, Args::Secret(attempt)) => self.login(session, attempt, now, out, close)?,
             (CommandId::Help, _) => {
@@ -309,14 +303,14 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             }
             (CommandId::AdminLock | CommandId::AdminUnlock, _) => {
                 let on = command.id() == CommandId::AdminLock;
-                self.backend.lock_mode_changed(on).map_err(Failed)?;
+                self.backend.lock_mode_changed(on)?;
                 self.auth.set_lock_mode(on);
                 out.bool("lock_mode", self.auth.lock_mode());
             }
-            (CommandId::Passwd, Args::NewPassword(new)) => self.passwd(session, new).map_err(Failed)?,
+            (CommandId::Passwd, Args::NewPassword(new)) => self.passwd(session, new)?,
             _ => {
                 let ctx = self.context(session, now);
-                return self.backend.execute(command, &ctx, out).map_err(Failed);
+                return self.backend.execute(command, &ctx, out);
             }
         }
         Ok(Step::Done)
@@ -329,14 +323,14 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         now: i64,
         out: &mut Fields<'_>,
         close: &mut Option<CloseCode>,
-    ) -> Result<(), Unrun> {
+    ) -> Result<(), Failure> {
         match self.auth.login(session, attempt, now) {
-            LoginOutcome::Throttled { retry_after_s } => return Err(Throttled(retry_after_s)),
+            LoginOutcome::Throttled { retry_after_s } => return Err(Failure::throttled(retry_after_s)),
             LoginOutcome::Wrong { close: shut } => {
                 if shut {
                     *close = Some(CloseCode::Policy);
                 }
-                return Err(Failed(Failure::failed(messages::WRONG_PASSWORD)));
+                return Err(Failure::failed(messages::WRONG_PASSWORD));
             }
             LoginOutcome::User | LoginOutcome::Admin | LoginOutcome::LoggedOut => {}
         }
@@ -355,21 +349,13 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         };
         self.auth.check_password(new).map_err(bad)?;
         self.backend.password_changed(new)?;
-        self.auth.set_password(new).map_err(bad)?;
+        // Checked just above, against the same login values: it cannot
+        // fail now.
+        let _ = self.auth.set_password(new);
         self.auth.admit(session);
         Ok(())
     }
 }
-
-/// Why a command that passed the gates did not run.
-enum Unrun {
-    /// It failed: answered with the failure.
-    Failed(Failure),
-    /// A login the throttle refused: answered with when to retry.
-    Throttled(u32),
-}
-
-use Unrun::{Failed, Throttled};
 
 /// Writes `answer` into `out` (or records a pending one in `session`).
 fn write<'o>(
@@ -384,20 +370,18 @@ fn write<'o>(
             .or_else(|| response::write_error(out, Ret::Failed, cmd, ts, &[messages::TOO_LARGE])),
         Answer::Error(ret, cmd, parts) => response::write_error(out, ret, cmd, ts, &parts),
         Answer::Failed(cmd, f, end) => match (f.is_written(), end) {
-            (false, _) => response::write_error(out, f.ret(), cmd, ts, &[f.msg()]),
+            (false, _) => {
+                let len = response::write_error(out, f.ret(), cmd, ts, &[f.msg()]);
+                match f.retry_after_s() {
+                    Some(secs) => len.and_then(|end| response::retry_after(out, end, secs)),
+                    None => len,
+                }
+            }
             (true, Some(end)) => response::finish(out, f.ret(), cmd, ts, end),
             // Written into some other buffer: a backend bug, not the
             // client's; say so rather than send a message that isn't there.
             (true, None) => response::write_error(out, Ret::Unhandled, cmd, ts, &[messages::UNHANDLED]),
         },
-        Answer::Throttled(cmd, secs) => response::write_error_with(
-            out,
-            Ret::Failed,
-            cmd,
-            ts,
-            &[messages::THROTTLED],
-            ("retry_after_s", secs),
-        ),
         Answer::Pending(id, ticket) => {
             session.set_pending(Some((ticket, id)));
             return Outcome::Pending(ticket, out);

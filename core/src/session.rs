@@ -296,7 +296,7 @@ impl<S: Slots> Auth<S> {
     pub fn login(&mut self, session: &mut Session, attempt: &str, now_ms: i64) -> LoginOutcome {
         if let Some(wait_ms) = session.peer.and_then(|peer| self.throttle.wait(&peer, now_ms)) {
             return LoginOutcome::Throttled {
-                retry_after_s: wait_ms.div_ceil(1000).max(1),
+                retry_after_s: wait_ms.div_ceil(1000),
             };
         }
         let a = attempt.as_bytes();

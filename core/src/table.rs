@@ -162,7 +162,7 @@ macro_rules! command_table {
         pub static TABLE: [Spec; [$( $($id,)* )*].len()] = [
             $( $( Spec {
                 id: CommandId::$variant,
-                name: $name,
+                name: name_in($usage, $name),
                 section: Section::$section,
                 grammar: Grammar::$grammar,
                 flags: flags!($($flag)*),
@@ -314,6 +314,21 @@ command_table! {
         98 AdminLock "admin_lock" None [ADMIN] "admin_lock" "Enable the vehicle-wide lock (admin only).";
         99 AdminUnlock "admin_unlock" None [ADMIN] "admin_unlock" "Disable the vehicle-wide lock (admin only).";
     }
+}
+
+/// `name`, as the start of `usage` (which begins with the name and a space,
+/// or is the name alone): the same text, stored once. A firmware's flash
+/// holds every usage line; the names would be about a kilobyte more.
+const fn name_in(usage: &'static str, name: &'static str) -> &'static str {
+    let (head, rest) = match usage.split_at_checked(name.len()) {
+        Some(parts) => parts,
+        None => ("", ""),
+    };
+    assert!(
+        same(head.as_bytes(), name.as_bytes()) && matches!(rest.as_bytes().first(), None | Some(b' ')),
+        "a usage line starts with its command's name"
+    );
+    head
 }
 
 // The table is indexed by `id - 1`; a row out of order would break `spec()`.

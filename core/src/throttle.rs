@@ -253,26 +253,26 @@ impl<S: Slots> Throttle<S> {
     /// frees, and the budget holds a check again, whichever is last. Other
     /// clients' wrong passwords meanwhile may make it longer.
     pub fn wait(&self, peer: &Peer, now: i64) -> Option<u32> {
-        let budget = self.full_at.saturating_sub(i64::from(self.burst_ms));
         let place = match self.place(&key(peer), now) {
             Place::Own(i) => self.slot(i).locked_until,
             Place::New(_) => now,
             Place::Full => self.first_spent(),
         };
-        let until = budget.max(place);
-        (until > now).then(|| u32::try_from(until.saturating_sub(now)).unwrap_or(u32::MAX))
+        let until = place.max(self.full_at.saturating_sub(i64::from(self.burst_ms)));
+        let ms = until.wrapping_sub(now);
+        (ms > 0).then(|| u32::try_from(ms).unwrap_or(u32::MAX))
     }
 
     /// When the first record becomes [`Slot::spent`], so that a new client
-    /// finds a slot (the table is full of records that still matter).
+    /// finds a slot (the table is full of records that still matter, each
+    /// of them touched in the past: no sum here overflows).
     fn first_spent(&self) -> i64 {
         let base = i64::from(self.base_ms);
-        self.slots
-            .as_ref()
-            .iter()
-            .map(|s| s.locked_until.max(s.touched.saturating_add(base)))
-            .min()
-            .unwrap_or(i64::MIN)
+        let mut first = i64::MAX;
+        for s in self.slots.as_ref() {
+            first = first.min(s.locked_until.max(s.touched.wrapping_add(base)));
+        }
+        first
     }
 
     /// Counts a checked wrong password from `peer`: it spends the budget,

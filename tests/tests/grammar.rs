@@ -209,7 +209,7 @@ async fn a_setpoint_at_or_below_the_ground_is_refused_and_the_vehicle_keeps_hove
 #[tokio::test]
 async fn every_range_refusal_names_the_range() {
     let (_dir, _d, mut c) = daemon().await;
-    let float = "number out of range -3.4028235e38..3.4028235e38 (a 32-bit float)";
+    let float = "number beyond a 32-bit float (3.4028235e38)";
     for (frame, why) in [
         ("ara8_pitch 90.000001", "angle out of range -90..90"),
         ("ara8_pitch -91", "angle out of range -90..90"),
@@ -217,8 +217,8 @@ async fn every_range_refusal_names_the_range() {
         ("grabber_ctrl 99999999999", "PWM value out of range 0..65535"),
         ("showmsg 4294967296", "integer out of range 0..4294967295"),
         ("mw_exec 4294967296:1", "integer out of range 0..4294967295"),
-        ("apron_vol -1", "number out of range: 0 or more"),
-        ("clear_images -1e-50", "number out of range: 0 or more"),
+        ("apron_vol -1", "number below 0"),
+        ("clear_images -1e-50", "number below 0"),
         ("set_sp_ned 1e39:0:-3:0", float),
         ("test_wp 0:0:-1e39", float),
         ("zyhk -0", "zyhk height 0 must be above 0"),
@@ -241,17 +241,19 @@ async fn every_range_refusal_names_the_range() {
 #[tokio::test]
 async fn stored_text_holds_no_control_or_format_characters_and_has_a_maximum() {
     let (_dir, _d, mut c) = daemon().await;
-    let spoofing =
-        "Invalid arguments: text holds a control or format character (Unicode Cc, Cf) or ends with a space";
-    for frame in [
-        "set_taskname a\u{202E}b",
-        "set_taskname zero\u{200B}width",
-        "plan east\u{2066}field",
-        "plan bell\u{7}",
-        "set_param takeoff_alt:3\u{202E}",
+    for (frame, usage) in [
+        ("set_taskname a\u{202E}b", "set_taskname name"),
+        ("set_taskname zero\u{200B}width", "set_taskname name"),
+        ("plan east\u{2066}field", "plan plan_string"),
+        ("plan bell\u{7}", "plan plan_string"),
+        ("set_param takeoff_alt:3\u{202E}", "set_param name:value"),
     ] {
         let r = c.request(frame).await;
-        assert_eq!(refused(&r), (-2, spoofing), "{frame:?}");
+        assert_eq!(
+            refused(&r),
+            (-2, &*format!("Invalid arguments, usage: {usage}")),
+            "{frame:?}"
+        );
     }
     let r = c.request(&format!("set_taskname {}", "t".repeat(257))).await;
     assert_eq!(

@@ -134,23 +134,14 @@ pub(crate) fn path(s: &str) -> Result<&str, ArgError> {
     Ok(s)
 }
 
-/// Non-empty, no control characters, and no trailing space (the frame's
-/// trailing spaces are not part of it, so it could not round-trip).
-fn plain(s: &str) -> Result<&str, ArgError> {
+/// Text: non-empty, no control or format characters (Unicode Cc, Cf: a
+/// console showing stored text must not be spoofed, and U+202E turns
+/// `a\u{202E}b` around), and no trailing space (the frame's trailing
+/// spaces are not part of it, so it could not round-trip).
+pub(crate) fn text(s: &str) -> Result<&str, ArgError> {
     if s.is_empty() {
         Err(ArgError::Missing)
-    } else if s.ends_with(' ') || s.chars().any(is_control) {
-        Err(ArgError::BadText)
-    } else {
-        Ok(s)
-    }
-}
-
-/// Text a client stores or sets (a parameter's value): [`plain`], and no
-/// format characters either, so that a console showing it cannot be
-/// spoofed (U+202E turns `a\u{202E}b` around).
-pub(crate) fn text(s: &str) -> Result<&str, ArgError> {
-    if plain(s)?.chars().any(is_format) {
+    } else if s.ends_with(' ') || s.chars().any(|c| is_control(c) || is_format(c)) {
         Err(ArgError::BadText)
     } else {
         Ok(s)
@@ -175,10 +166,10 @@ fn at_most(s: &str, max: usize, bound: Bound) -> Result<&str, ArgError> {
     }
 }
 
-/// A login attempt is text nobody stores; whether it matches is the
-/// session's business.
+/// A login attempt is text (no password holds a Cc or Cf character);
+/// whether it matches is the session's business.
 pub(crate) fn secret(s: &str) -> Result<&str, ArgError> {
-    plain(s)
+    text(s)
 }
 
 /// The characters of a password: 1–32 printable ASCII characters, no

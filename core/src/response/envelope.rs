@@ -109,34 +109,21 @@ pub(crate) fn finish(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, body_end: usize
 /// Writes a whole error response `{"ret":..,"cmd":..,"ts":..,"msg":".."}`
 /// whose message is `parts` concatenated. `None` if `buf` is too short.
 pub(crate) fn write_error(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, parts: &[&str]) -> Option<usize> {
-    let mut s = error_head(buf, ret, cmd, ts, parts)?;
-    s.byte(b'}');
-    (!s.overflow).then_some(s.len)
-}
-
-/// [`write_error`] with one more member, an unsigned integer, after `msg`.
-pub(crate) fn write_error_with(
-    buf: &mut [u8],
-    ret: Ret,
-    cmd: u8,
-    ts: i64,
-    parts: &[&str],
-    (key, value): (&str, u32),
-) -> Option<usize> {
-    let mut s = error_head(buf, ret, cmd, ts, parts)?;
-    s.byte(b',');
-    s.string(&[key]);
-    s.byte(b':');
-    s.int(i64::from(value));
-    s.byte(b'}');
-    (!s.overflow).then_some(s.len)
-}
-
-/// An error response up to the end of its `msg`.
-fn error_head<'b>(buf: &'b mut [u8], ret: Ret, cmd: u8, ts: i64, parts: &[&str]) -> Option<Sink<'b>> {
     let len = head(buf, ret, cmd, ts)?;
     let mut s = Sink::new(buf, len);
     s.bytes(br#","msg":"#);
     s.string(parts);
-    Some(s)
+    s.byte(b'}');
+    (!s.overflow).then_some(s.len)
+}
+
+/// Adds `retry_after_s` to the error response of `end` bytes in `buf` (a
+/// login the throttle refused says when to try again); the new length.
+pub(crate) fn retry_after(buf: &mut [u8], end: usize, secs: u32) -> Option<usize> {
+    // Over the closing brace.
+    let mut s = Sink::new(buf, end.checked_sub(1)?);
+    s.bytes(br#","retry_after_s":"#);
+    s.int(i64::from(secs));
+    s.byte(b'}');
+    (!s.overflow).then_some(s.len)
 }
