@@ -395,6 +395,30 @@ mod tests {
     }
 
     #[test]
+    fn a_full_store_keeps_the_mission_that_runs() {
+        let mut m = Missions::default();
+        let mission = |ext_id| Mission {
+            ext_id,
+            waypoints: vec![wp(1, 0.0, 0.0, -1.0)],
+        };
+        m.uploaded(mission(7000), 0);
+        m.start_run(OnAutopilot {
+            ext_id: 7000,
+            wp_ids: vec![1],
+            first_seq: 0,
+        });
+        assert_eq!(m.running(), Some(7000));
+        for ext_id in 1..=u32::try_from(MAX_KEPT).unwrap() {
+            m.uploaded(mission(ext_id), 0);
+        }
+        assert_eq!(m.submitted.len(), MAX_KEPT);
+        assert!(m.select(7000, &[1]).is_ok(), "the running mission stays");
+        assert!(m.select(1, &[1]).is_err(), "the oldest other went");
+        m.drop_run();
+        assert_eq!(m.running(), None);
+    }
+
+    #[test]
     fn waypoints_are_selected_by_id_in_the_order_asked() {
         let mut m = Missions::default();
         m.uploaded(
