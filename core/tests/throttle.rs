@@ -152,6 +152,15 @@ fn a_login_refused_by_the_lockout_says_when_to_retry() {
         (Some(-1), Some(THROTTLED))
     );
     assert_eq!(v["retry_after_s"], 30, "{v}");
+    // Whole in the smallest buffer every error fits.
+    let mut small = vec![0u8; lluav_core::MIN_RESPONSE_CAPACITY];
+    let outcome = rig
+        .server
+        .handle(&mut session, Message::Text(b"login pw"), &mut small);
+    assert_eq!(
+        checked_json(outcome.reply().expect("answered"))["retry_after_s"],
+        30
+    );
     rig.advance(10_000);
     assert_eq!(rig.retry_after(ATTACKER, "pw"), Some(20));
     rig.advance(19_500);

@@ -228,6 +228,14 @@ async fn every_range_refusal_names_the_range() {
             "set_param takeoff_alt:121",
             "takeoff_alt 121 out of range 0.5..120",
         ),
+        (
+            "set_param takeoff_alt:1e39",
+            "takeoff_alt 1e39 out of range 0.5..120",
+        ),
+        (
+            "set_param mavlink_rate:99999999999999999999",
+            "mavlink_rate 99999999999999999999 out of range 1..400",
+        ),
     ] {
         let r = c.request(frame).await;
         assert_eq!(
