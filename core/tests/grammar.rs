@@ -529,3 +529,26 @@ fn names_refuse_exactly_separators_and_unicode_control_and_format_characters() {
     }
     assert!(refused > 65 + 150, "{refused}");
 }
+
+#[test]
+fn length_refusals_name_the_limits_the_grammar_enforces() {
+    use lluav_core::parse::{MAX_TASK_NAME_LEN, MAX_TEXT_LEN};
+    assert!(Bound::Text.reason().contains(&format!(" {MAX_TEXT_LEN} bytes")));
+    assert!(
+        Bound::TaskName
+            .reason()
+            .contains(&format!(" {MAX_TASK_NAME_LEN} bytes"))
+    );
+    for bound in [
+        Bound::Angle,
+        Bound::NonNegative,
+        Bound::Pwm,
+        Bound::Integer,
+        Bound::Float,
+        Bound::Text,
+        Bound::TaskName,
+    ] {
+        assert!(!bound.reason().is_empty(), "{bound:?}");
+        assert_eq!(ArgError::OutOfRange(bound).reason(), Some(bound.reason()));
+    }
+}
