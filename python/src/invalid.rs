@@ -50,7 +50,9 @@ fn reason(e: ArgError) -> &'static str {
             "not a safe name or relative path (no leading '/' or '.', no '\\', control or format \
              characters, empty or space-padded components; a name is at most 128 bytes)"
         }
-        ArgError::BadText => "text may not hold control or format characters (Unicode Cc, Cf) or end with a space",
+        ArgError::BadText => {
+            "text may not hold control or format characters (Unicode Cc, Cf) or end with a space"
+        }
         ArgError::TooMany => "a list holds too many items",
         ArgError::BadJson => "the JSON payload is not well-formed (or nests too deeply)",
         ArgError::BadPassword => "a password is 1-32 printable ASCII characters without spaces",
