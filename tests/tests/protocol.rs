@@ -144,6 +144,7 @@ fn sample_args(grammar: Grammar) -> &'static str {
         Grammar::Name => "sample",
         Grammar::Path => "sample/dir",
         Grammar::Text => "sample text",
+        Grammar::TaskName => "sample task",
         Grammar::Secret => "1025",
         Grammar::NewPassword => "n3wpass",
         Grammar::ParamName => "takeoff_alt",
