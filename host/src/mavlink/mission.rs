@@ -132,6 +132,11 @@ impl Missions {
         self.run = None;
     }
 
+    /// Whether the latest run has waypoints left.
+    pub fn running(&self) -> bool {
+        self.run.as_ref().is_some_and(|r| r.status == Status::Running)
+    }
+
     /// The run did not start after all.
     pub fn drop_run(&mut self) {
         self.run = None;
