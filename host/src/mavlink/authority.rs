@@ -7,11 +7,17 @@
 //! (`external: <mode>`) that it entered without lluavd asking for it —
 //! by a mode change, or because it was in that mode when lluavd first saw
 //! it — or when its `system_status` is CRITICAL or EMERGENCY
-//! (`autopilot: <status>`) and its mode says nothing of its own. What
-//! lluavd asked for last ([`Asked`]) is remembered, so the modes that
-//! follow from its own commands (the return and landing after `rtl`, the
-//! landing after `land`) never count; holds are never failsafes (the hold
-//! after a takeoff or at a mission's end follows from lluavd's commands).
+//! (`autopilot: <status>`) and its mode says nothing of its own.
+//!
+//! What lluavd asks for is remembered ([`Asked`]), so the modes that
+//! follow from its own commands never count: a return or landing mode
+//! entered within [`ASKED_WINDOW_MS`] of lluavd's `rtl`, `mrtl` or `land`
+//! (the heartbeat showing it may come after lluavd's next command), and
+//! the landing a return of lluavd's ends in. A mode lluavd asked to leave
+//! (a takeoff from the ground in a pilot's mode, a setpoint from a
+//! return) starts nothing while the heartbeat still shows it. Holds are
+//! never failsafes: the hold after a takeoff or at a mission's end
+//! follows from lluavd's commands.
 //!
 //! Each reason starts once, on entry, and the latest reason is the
 //! failsafe; it ends when a heartbeat says disarmed. `control_take
@@ -24,13 +30,17 @@ use lluav_core::{Action, Failsafe};
 
 use super::autopilot::{Flavour, Kind};
 
-/// What lluavd last asked the autopilot to do: the modes that follow from
-/// it are lluavd's own.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// How long after lluavd asked for a return or a landing the autopilot
+/// entering it is lluavd's doing, ms: the command's retries (4.5 s) and a
+/// heartbeat period, with room to spare.
+pub const ASKED_WINDOW_MS: i64 = 10_000;
+
+/// Most requests for a return or landing remembered at once.
+const MAX_ASKED: usize = 4;
+
+/// What lluavd asks the autopilot to do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Asked {
-    /// Nothing since the vehicle was last disarmed (or the command failed).
-    #[default]
-    Nothing,
     /// `takeoff`: the takeoff mode, then the autopilot's hold.
     Takeoff,
     /// `set_sp_ned`: the mode that follows setpoints.
@@ -44,14 +54,12 @@ pub enum Asked {
 }
 
 impl Asked {
-    /// Whether entering a mode of `kind` follows from what was asked.
-    fn explains(self, kind: Kind) -> bool {
-        match kind {
-            Kind::Return => self == Asked::Return,
-            Kind::Land => matches!(self, Asked::Land | Asked::Return),
-            // lluavd never asks for a pilot's mode; the others never
-            // start a failsafe.
-            Kind::Manual | Kind::Other => false,
+    /// The kind of failsafe-looking mode it leads to, if any.
+    fn kind(self) -> Option<Kind> {
+        match self {
+            Asked::Land => Some(Kind::Land),
+            Asked::Return => Some(Kind::Return),
+            Asked::Takeoff | Asked::Setpoints | Asked::Mission => None,
         }
     }
 }
@@ -70,6 +78,8 @@ pub struct Look {
     pub armed: bool,
     /// Whether the vehicle is in the air.
     pub airborne: bool,
+    /// When, on the daemon's clock, ms.
+    pub now_ms: i64,
 }
 
 /// A failsafe that started.
@@ -85,14 +95,16 @@ pub struct Started {
 /// The failsafes of the autopilot followed.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Watch {
-    /// The mode of the latest heartbeat.
-    mode: Option<u32>,
-    /// Whether that mode was entered without lluavd asking for it (a
-    /// change, or the mode lluavd first saw), and lluavd has not asked
-    /// for anything since.
-    unasked: bool,
-    /// What lluavd asked for last.
-    asked: Asked,
+    /// The mode of the latest heartbeat, and its kind.
+    mode: Option<(u32, Kind)>,
+    /// Whether that mode follows from lluavd's commands.
+    own: bool,
+    /// Whether lluavd asked for something else since that mode was
+    /// entered: it is being left.
+    left: bool,
+    /// The returns and landings lluavd asked for, and until when
+    /// (ms) entering one is its doing.
+    asked: Vec<(Kind, i64)>,
     /// The failsafe, until the vehicle is disarmed.
     current: Option<Failsafe>,
     /// The reasons (source, detail) started since the vehicle was last
@@ -112,20 +124,51 @@ impl Watch {
         self.current.filter(Failsafe::holds)
     }
 
-    /// lluavd is about to send a command that asks for `asked`: the mode
-    /// it leaves was not a failsafe's to keep, and the modes that follow
-    /// from `asked` are lluavd's own. (The failsafe gate lets only
+    /// lluavd is about to send a command that asks for `asked` at `now_ms`:
+    /// the mode it leaves starts nothing any more, and the return or
+    /// landing it leads to is lluavd's own. (The failsafe gate lets only
     /// conservative commands through while a failsafe holds.)
-    pub fn ask(&mut self, asked: Asked) {
-        self.asked = asked;
-        self.unasked = false;
+    pub fn ask(&mut self, asked: Asked, now_ms: i64) {
+        self.left = true;
+        if let Some(kind) = asked.kind() {
+            self.asked.retain(|&(_, until)| until > now_ms);
+            if self.asked.len() == MAX_ASKED {
+                self.asked.remove(0);
+            }
+            self.asked.push((kind, now_ms.saturating_add(ASKED_WINDOW_MS)));
+        }
     }
 
-    /// The command that asked for `asked` failed: what the autopilot does
-    /// next is its own again.
+    /// The command that asked for `asked` failed: the autopilot entering
+    /// it is its own doing again.
     pub fn unask(&mut self, asked: Asked) {
-        if self.asked == asked {
-            self.asked = Asked::Nothing;
+        if let Some(i) = self.asked.iter().rposition(|&(k, _)| Some(k) == asked.kind()) {
+            self.asked.remove(i);
+        }
+    }
+
+    /// Whether entering a mode of `kind` at `now_ms` follows from lluavd's
+    /// commands: it asked for it (each request explains one entry), or it
+    /// continues a return or landing of lluavd's.
+    fn explained(&mut self, kind: Kind, now_ms: i64) -> bool {
+        let continues = self.own
+            && matches!(
+                (self.mode.map(|(_, k)| k), kind),
+                (Some(Kind::Return), Kind::Return | Kind::Land) | (Some(Kind::Land), Kind::Land)
+            );
+        if continues {
+            return true;
+        }
+        match self
+            .asked
+            .iter()
+            .position(|&(k, until)| k == kind && until > now_ms)
+        {
+            Some(i) => {
+                self.asked.remove(i);
+                true
+            }
+            None => false,
         }
     }
 
@@ -141,16 +184,17 @@ impl Watch {
     /// if any.
     pub fn observe(&mut self, look: &Look) -> Option<Started> {
         let kind = look.flavour.kind(look.custom_mode);
-        if self.mode != Some(look.custom_mode) {
-            self.mode = Some(look.custom_mode);
-            self.unasked = !self.asked.explains(kind);
+        if self.mode.map(|(m, _)| m) != Some(look.custom_mode) {
+            self.own = kind != Kind::Other && self.explained(kind, look.now_ms);
+            self.left = false;
+            self.mode = Some((look.custom_mode, kind));
         }
         if !look.armed {
             if let Some(f) = self.current.take() {
                 tracing::info!(failsafe = %f.reason(), "failsafe over: the vehicle is disarmed");
             }
             self.started.clear();
-            self.asked = Asked::Nothing;
+            self.asked.clear();
             return None;
         }
         if !look.airborne {
@@ -167,7 +211,7 @@ impl Watch {
             MavState::MAV_STATE_EMERGENCY => Some("EMERGENCY"),
             _ => None,
         };
-        let by_mode = (self.unasked && kind != Kind::Other).then(|| {
+        let by_mode = (kind != Kind::Other && !self.own && !self.left).then(|| {
             let source = if kind == Kind::Manual {
                 "external"
             } else {
@@ -229,6 +273,7 @@ mod tests {
             status: MavState::MAV_STATE_ACTIVE,
             armed: true,
             airborne: true,
+            now_ms: 0,
         }
     }
 
@@ -247,7 +292,7 @@ mod tests {
     fn following() -> Watch {
         let mut w = Watch::default();
         w.observe(&look(Flavour::Px4, PX4_LOITER));
-        w.ask(Asked::Setpoints);
+        w.ask(Asked::Setpoints, 0);
         assert_eq!(w.observe(&look(Flavour::Px4, PX4_OFFBOARD)), None);
         w
     }
@@ -295,16 +340,16 @@ mod tests {
             airborne: false,
             ..look(Flavour::Px4, PX4_POSCTL)
         });
-        w.ask(Asked::Takeoff);
+        w.ask(Asked::Takeoff, 0);
         for mode in [PX4_POSCTL, PX4_TAKEOFF, PX4_LOITER] {
             assert_eq!(w.observe(&look(Flavour::Px4, mode)), None);
         }
-        w.ask(Asked::Mission);
+        w.ask(Asked::Mission, 0);
         for mode in [PX4_MISSION, PX4_LOITER] {
             assert_eq!(w.observe(&look(Flavour::Px4, mode)), None);
         }
         // rtl: the return and the landing that ends it.
-        w.ask(Asked::Return);
+        w.ask(Asked::Return, 0);
         for mode in [PX4_RTL, PX4_LAND] {
             assert_eq!(w.observe(&look(Flavour::Px4, mode)), None);
         }
@@ -312,16 +357,54 @@ mod tests {
         // land, on ArduPilot.
         let mut w = Watch::default();
         w.observe(&look(Flavour::ArduPilot, COPTER_GUIDED));
-        w.ask(Asked::Land);
+        w.ask(Asked::Land, 0);
         assert_eq!(w.observe(&look(Flavour::ArduPilot, COPTER_LAND)), None);
         // ... but a return lluavd did not ask for, after its landing, is.
         assert!(w.observe(&look(Flavour::ArduPilot, COPTER_RTL)).is_some());
     }
 
     #[test]
+    fn a_mode_asked_for_shows_in_time_even_after_lluavds_next_command() {
+        // land, then set_sp_ned before a heartbeat showed the landing.
+        let mut w = following();
+        w.ask(Asked::Land, 1000);
+        w.ask(Asked::Setpoints, 1200);
+        let late = Look {
+            now_ms: 1500,
+            ..look(Flavour::Px4, PX4_LAND)
+        };
+        assert_eq!(w.observe(&late), None);
+        // Each request explains one entry, within its window.
+        let mut w = following();
+        w.ask(Asked::Return, 1000);
+        let rtl = |now_ms| Look {
+            now_ms,
+            ..look(Flavour::Px4, PX4_RTL)
+        };
+        assert_eq!(
+            w.observe(&rtl(1000 + ASKED_WINDOW_MS)).map(|s| s.failsafe.detail),
+            Some("AUTO.RTL")
+        );
+    }
+
+    #[test]
+    fn a_pilot_taking_over_lluavds_return_is_external() {
+        let mut w = following();
+        w.ask(Asked::Return, 0);
+        assert_eq!(w.observe(&look(Flavour::Px4, PX4_RTL)), None);
+        assert!(w.observe(&look(Flavour::Px4, PX4_POSCTL)).is_some());
+        // ... and the landing after it is not lluavd's return's.
+        let mut w = following();
+        w.ask(Asked::Return, 0);
+        w.observe(&look(Flavour::Px4, PX4_RTL));
+        w.observe(&look(Flavour::Px4, PX4_LOITER));
+        assert!(w.observe(&look(Flavour::Px4, PX4_LAND)).is_some());
+    }
+
+    #[test]
     fn a_command_that_failed_explains_nothing() {
         let mut w = following();
-        w.ask(Asked::Land);
+        w.ask(Asked::Land, 0);
         w.unask(Asked::Land);
         assert!(w.observe(&look(Flavour::Px4, PX4_LAND)).is_some());
     }
@@ -392,7 +475,7 @@ mod tests {
         w.override_failsafe();
         // Overridden, back on lluavd's setpoints, still CRITICAL: no new
         // failsafe for the status that came with the return.
-        w.ask(Asked::Setpoints);
+        w.ask(Asked::Setpoints, 0);
         let back = Look {
             status: MavState::MAV_STATE_CRITICAL,
             ..look(Flavour::Px4, PX4_OFFBOARD)
@@ -410,7 +493,7 @@ mod tests {
         assert_eq!(reason(&w).as_deref(), Some("autopilot: AUTO.RTL (overridden)"));
         // Back on setpoints after the override; the same return again
         // does not start again while the failsafe lasts...
-        w.ask(Asked::Setpoints);
+        w.ask(Asked::Setpoints, 0);
         w.observe(&look(Flavour::Px4, PX4_OFFBOARD));
         assert_eq!(w.observe(&look(Flavour::Px4, PX4_RTL)), None);
         // ... a different reason does.
@@ -423,7 +506,7 @@ mod tests {
             ..look(Flavour::Px4, PX4_POSCTL)
         });
         assert_eq!(w.failsafe(), None);
-        w.ask(Asked::Takeoff);
+        w.ask(Asked::Takeoff, 0);
         w.observe(&look(Flavour::Px4, PX4_LOITER));
         assert!(w.observe(&look(Flavour::Px4, PX4_RTL)).is_some());
     }

@@ -359,7 +359,7 @@ impl MavlinkVehicle {
         let flavour = self.flying(ctx)?;
         self.link.with(|k| {
             k.stop_stream();
-            k.ask(asked);
+            k.ask(asked, ctx.now_ms);
         });
         let link = Arc::clone(&self.link);
         let effect = effect(flavour);
@@ -395,7 +395,7 @@ impl MavlinkVehicle {
                 let alt = self.limits.envelope(Ned::default()).clip(self.limits.takeoff_alt) as f32;
                 link.with(|k| {
                     k.stop_stream();
-                    k.ask(Asked::Takeoff);
+                    k.ask(Asked::Takeoff, ctx.now_ms);
                 });
                 Ok(self.pend(cmd.id(), ops::takeoff(link, flavour, alt)))
             }
@@ -524,7 +524,7 @@ impl MavlinkVehicle {
             .check(target)
             .map_err(|why| MavError::Invalid(why.to_string()))?;
         let in_mode = self.link.with(|k| {
-            k.ask(Asked::Setpoints);
+            k.ask(Asked::Setpoints, ctx.now_ms);
             k.stream(pose, ctx.session);
             k.tel()
                 .custom_mode()
@@ -612,7 +612,7 @@ impl MavlinkVehicle {
             first_seq,
         };
         let upload = (on_autopilot.as_ref() != Some(&plan)).then_some(items);
-        self.link.with(|k| k.ask(Asked::Mission));
+        self.link.with(|k| k.ask(Asked::Mission, ctx.now_ms));
         Ok(self.pend(CommandId::MwExec, ops::exec(Arc::clone(&self.link), plan, upload)))
     }
 }

@@ -134,6 +134,7 @@ impl Known {
             status,
             armed: self.tel.armed(),
             airborne: self.airborne(now_ms),
+            now_ms,
         };
         if let Some(started) = self.watch.observe(&look)
             && started.left_setpoints
@@ -261,10 +262,10 @@ impl Known {
         self.watch.override_failsafe()
     }
 
-    /// lluavd is about to ask the autopilot for `asked`: the modes that
-    /// follow are its own.
-    pub fn ask(&mut self, asked: Asked) {
-        self.watch.ask(asked);
+    /// lluavd is about to ask the autopilot for `asked` at `now_ms`: the
+    /// modes that follow are its own.
+    pub fn ask(&mut self, asked: Asked, now_ms: i64) {
+        self.watch.ask(asked, now_ms);
     }
 
     /// The command that asked for `asked` failed.

@@ -286,7 +286,7 @@ const PX4_OFFBOARD: u32 = 6 << 16;
 #[test]
 fn a_failsafe_mode_stops_the_stream_and_refuses_steering_until_overridden() {
     let mut k = flying();
-    k.ask(Asked::Setpoints);
+    k.ask(Asked::Setpoints, 0);
     k.receive(
         addr(1),
         &header(1),
@@ -322,7 +322,7 @@ fn a_failsafe_mode_stops_the_stream_and_refuses_steering_until_overridden() {
 #[test]
 fn a_critical_status_keeps_the_stream_the_vehicle_still_follows() {
     let mut k = flying();
-    k.ask(Asked::Setpoints);
+    k.ask(Asked::Setpoints, 0);
     k.receive(
         addr(1),
         &header(1),
