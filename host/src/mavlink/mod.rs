@@ -17,15 +17,15 @@
 //!
 //! | command | MAVLink |
 //! |---|---|
-//! | `state` | the cache: `armed` (heartbeat), `fsm` (from armed, `EXTENDED_SYS_STATE` and the mode), `position`/`velocity` (`LOCAL_POSITION_NED`), `yaw` (`ATTITUDE`), `altitude` (`GLOBAL_POSITION_INT.relative_alt`), `battery` (`BATTERY_STATUS`/`SYS_STATUS`), `setpoint` (the streamed one or null), `home` (`HOME_POSITION`, local), plus `link` (`up`/`lost`), `heartbeat_age_ms`, `autopilot`, `mode`, `landed`, `global`, `home_global`, `mission` (the run's progress) |
-//! | `takeoff` | ArduPilot: `DO_SET_MODE` GUIDED; then `COMPONENT_ARM_DISARM` (arm), `NAV_TAKEOFF` to the configured altitude above home (disarms again if the autopilot refuses it; never when its acknowledgement is lost); once it answers 0, `fsm` is `takeoff` and the vehicle counts as flying until the telemetry shows the climb, a heartbeat shows it disarmed or `land`/`disarm` answers 0 (at most 10 s) |
-//! | `land` | `NAV_LAND` |
-//! | `rtl` | `NAV_RETURN_TO_LAUNCH` |
-//! | `mrtl` | ArduPilot: `DO_SET_MODE` SMART_RTL; PX4: not supported (-2) |
+//! | `state` | the cache: `armed` (heartbeat), `fsm` (from armed, `EXTENDED_SYS_STATE` and the mode), `position`/`velocity` (`LOCAL_POSITION_NED`), `yaw` (`ATTITUDE`), `altitude` (`GLOBAL_POSITION_INT.relative_alt`), `battery` (`BATTERY_STATUS`/`SYS_STATUS`), `setpoint` (the streamed one or null), `home` (`HOME_POSITION`, local), plus `link` (`up`/`lost`), `heartbeat_age_ms`, `autopilot`, `mode`, `landed`, `global`, `home_global`, `mission` (the run's progress); `failsafe` (`authority`) and `control` as every backend |
+//! | `takeoff` | ArduPilot: `DO_SET_MODE` GUIDED; then `COMPONENT_ARM_DISARM` (arm), `NAV_TAKEOFF` to `takeoff_alt` above home clipped into `min_alt..=max_alt` (answered as `target_alt`; disarms again if the autopilot refuses it; never when its acknowledgement is lost); once it answers 0, `fsm` is `takeoff` and the vehicle counts as flying until the telemetry shows the climb, a heartbeat shows it disarmed or `land`/`disarm` answers 0 (at most 10 s) |
+//! | `land` | `NAV_LAND`; the setpoint stream stops |
+//! | `rtl` | `NAV_RETURN_TO_LAUNCH`; the setpoint stream stops; answers `home` and `return_alt`, the autopilot's own RTL altitude (PX4 `RTL_RETURN_ALT`, ArduPilot `RTL_ALT`, read at link-up; null if unknown): lluavd cannot clip it, and logs a warning when it is above `max_alt` |
+//! | `mrtl` | ArduPilot: `DO_SET_MODE` SMART_RTL (the stream stops; `return_alt` null: it retraces the path flown); PX4: not supported (-2) |
 //! | `disarm` | `COMPONENT_ARM_DISARM` with the force flag (21196): motors stop, in the air too |
-//! | `set_sp_ned` | in the air only (-1 `Vehicle is not flying`): `SET_POSITION_TARGET_LOCAL_NED` (`MAV_FRAME_LOCAL_NED`, position + yaw) re-sent at 10 Hz, then `DO_SET_MODE` OFFBOARD (PX4) / GUIDED (ArduPilot) unless already in it; streaming stops when no session that set it is connected, or on `disarm`/`mw_exec` |
-//! | `mission` | mission upload (`MISSION_COUNT`, `MISSION_REQUEST_INT`, `MISSION_ITEM_INT`, `MISSION_ACK`) of `NAV_WAYPOINT`s, NED converted to global from `HOME_POSITION` (altitude relative to home; ArduPilot's item 0 is home); a lost final `MISSION_ACK` is resolved by reading the mission count back (`MISSION_REQUEST_LIST`); requests past the end are ignored; nothing is ever cancelled |
-//! | `mw_exec` | in the air only: uploads the chosen waypoints unless they are what this autopilot holds (a new or rebooted autopilot holds none of them), `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
+//! | `set_sp_ned` | in the air only (-1 `Vehicle is not flying`), inside the envelope around `HOME_POSITION` (-2 `Invalid arguments: altitude 4 m above max_alt 3 m`; -1 while home is unknown): `SET_POSITION_TARGET_LOCAL_NED` (`MAV_FRAME_LOCAL_NED`, position + yaw) re-sent at 10 Hz, then `DO_SET_MODE` OFFBOARD (PX4) / GUIDED (ArduPilot) unless already in it, never out of a failsafe that holds; streaming stops when no session that set it is connected, on `land`/`rtl`/`mrtl`/`disarm`/`takeoff`/`mw_exec`, and when the autopilot leaves it for a failsafe mode |
+//! | `mission` | every waypoint inside the envelope around `HOME_POSITION` (-2 `Invalid arguments: waypoint 2: ...`); mission upload (`MISSION_COUNT`, `MISSION_REQUEST_INT`, `MISSION_ITEM_INT`, `MISSION_ACK`) of `NAV_WAYPOINT`s, NED converted to global from `HOME_POSITION` (altitude relative to home; ArduPilot's item 0 is home); a lost final `MISSION_ACK` is resolved by reading the mission count back (`MISSION_REQUEST_LIST`); requests past the end are ignored; nothing is ever cancelled |
+//! | `mw_exec` | in the air only, the waypoints checked again against the envelope around home now (it may have moved; -2 `Invalid arguments: waypoint 7: ...` by id): uploads the chosen waypoints unless they are what this autopilot holds (a new or rebooted autopilot holds none of them), `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
 //! | `mw_list`, `dump_missionresult` | the missions lluavd uploaded and the run's progress |
 //! | `param` | `PARAM_REQUEST_LIST`, missing indices read one by one |
 //! | `get_param`, `set_param` | `PARAM_REQUEST_READ` / `PARAM_SET` / `PARAM_VALUE` (integers bytewise on PX4, cast on ArduPilot, or as `AUTOPILOT_VERSION` announces) |
@@ -46,6 +46,23 @@
 //! clean up after a timeout. The companion computer's commands (files,
 //! logs, the machine) are answered by [`crate::companion`] as with the
 //! simulator.
+//!
+//! # Flight authority
+//!
+//! The core's gates (DESIGN.md, "Flight authority") need the failsafe
+//! from the vehicle; over MAVLink it is read from the heartbeats
+//! (`authority`): in the air, a return or land mode, or a pilot's mode,
+//! that lluavd did not ask for (or that was active when lluavd first saw
+//! the autopilot), or `system_status` CRITICAL/EMERGENCY. lluavd
+//! remembers what it asked for, so the modes that follow from its own
+//! commands never count; holds never do. While a failsafe holds, nothing
+//! lluavd sends for a motion command changes the mode (`DO_SET_MODE`,
+//! `NAV_TAKEOFF`, the mission start are checked again when sent);
+//! `control_take failsafe` overrides it; a heartbeat saying disarmed ends
+//! it. The envelope is lluavd's own ([`Limits`]: `min_alt`, `max_alt`,
+//! `geofence_radius` around `HOME_POSITION`, config keys and flags); the
+//! autopilot's geofence and RTL altitude are the autopilot's, and lluavd
+//! cannot clip them.
 //!
 //! # The radio link
 //!
@@ -75,7 +92,10 @@
 //! SMART_RTL, and `PREFLIGHT_STORAGE`'s read-back (param 1 = 0) which
 //! ArduPilot may refuse; every camera and gimbal command against a real
 //! camera or gimbal manager; the serial and TCP transports and their
-//! reconnection.
+//! reconnection; the modes a real autopilot enters on its own and the
+//! `system_status` it reports with them (PX4's failsafe actions, ArduPilot's
+//! failsafe options), and `RTL_RETURN_ALT`/`RTL_ALT` as they read on each
+//! release.
 
 mod answer;
 mod authority;
