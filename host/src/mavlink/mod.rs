@@ -119,6 +119,7 @@ mod transport;
 /// protocols over any [`fuzzing::Port`].
 #[cfg(feature = "fuzzing")]
 pub mod fuzzing {
+    pub use super::authority::Asked;
     pub use super::effect::Effect;
     pub use super::follow::Wanted;
     pub use super::protocol::{Heard, Incoming, Next, Port, Target, Timing, Upload, command, upload_mission};
