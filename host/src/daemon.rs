@@ -407,6 +407,7 @@ impl Daemon<MavlinkVehicle> {
         let cfg = MavlinkConfig {
             wanted: settings.mavlink_system,
             signing: settings.mavlink_signing_key.as_ref().map(|k| k.key.clone()),
+            limits: settings.mavlink_limits,
             ..MavlinkConfig::new(address)
         };
         let vehicle =

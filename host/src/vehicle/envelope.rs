@@ -145,13 +145,16 @@ impl Envelope {
 }
 
 /// A distance for a reason, one decimal, rounded away from the limit so
-/// that `500.04 m beyond 500 m` never reads `500 m beyond 500 m`.
+/// that `500.04 m beyond 500 m` never reads `500 m beyond 500 m`. Rounded
+/// from the number as a client wrote it (the `f32` it sent, read back as
+/// its shortest decimal): `10.1` stays `10.1`, though as an `f32` it is
+/// 10.100000381.
 fn round_up(dist: f64) -> f64 {
-    if dist < 1e6 {
-        (dist * 10.0).ceil() / 10.0
-    } else {
-        dist
+    if dist >= 1e6 {
+        return dist;
     }
+    let sent: f64 = (dist as f32).to_string().parse().unwrap_or(dist);
+    (sent * 10.0 - 1e-9).ceil() / 10.0
 }
 
 #[cfg(test)]
@@ -196,6 +199,10 @@ mod tests {
         );
         assert_eq!(
             why(Ned::new(100.01, 0.0, -1.0)),
+            "distance from home 100.1 m beyond geofence_radius 100 m"
+        );
+        assert_eq!(
+            why(Ned::new(f64::from(100.1f32), 0.0, -1.0)),
             "distance from home 100.1 m beyond geofence_radius 100 m"
         );
         assert_eq!(
