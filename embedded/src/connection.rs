@@ -54,7 +54,7 @@ use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY};
 use crate::error::{Error, Rejection};
 use crate::log::debug;
 use crate::receive::{Event, Reader};
-use crate::send::{Outgoing, Sender, Sent, write_reply};
+use crate::send::{Outgoing, Sender, Sent, write_reply, write_text};
 use crate::service::{Handler, Service};
 use crate::transport::{self, Transport};
 
@@ -241,6 +241,13 @@ impl<'b> Connection<'b> {
     ) -> Result<(Option<u16>, bool), Error<T::Error>> {
         let reply = self.limits.reply;
         let message = self.reader.message(event);
+        if S::ECHOES_TEXT
+            && matches!(event, Event::Message)
+            && let Ok(text) = message.text()
+        {
+            write_text(io, text.as_bytes()).await?;
+            return Ok((None, true));
+        }
         let mut waiting = None;
         let (sent, now) = loop {
             if !transport::reserve(io, header_len(reply) + reply).await? {
