@@ -53,9 +53,9 @@ board=embedded/boards/mps2-an500
 if [[ -z $elf ]]; then
   rustup target add thumbv7em-none-eabihf >/dev/null 2>&1 || true
   build=(--release)
-  # The echo build in a target dir of its own, so that switching between
-  # the two does not rebuild either.
-  ((echo)) && build+=(--features echo --target-dir target/echo)
+  # The same target dir: switching between the two rebuilds only the
+  # board's crate (its feature changes nothing below it).
+  ((echo)) && build+=(--features echo)
   elf=$(cd "$board" && LLUAV_PASSWORD=${LLUAV_PASSWORD:-qemu-secret} built_executable "${build[@]}")
 fi
 size -A "$elf" | awk '

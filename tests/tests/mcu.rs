@@ -128,6 +128,10 @@ async fn every_command_of_the_table_gets_exactly_one_answer_of_its_own() {
     c.close().await;
 }
 
+/// On a board each reply after the first of a burst waits for the peer to
+/// acknowledge the one before (the transmit buffer holds one 2 KiB reply),
+/// which a peer delaying its ACKs makes slow (QEMU's user networking: 200
+/// ms): a few rounds prove the order.
 #[tokio::test]
 async fn pipelined_requests_are_answered_in_order() {
     let t = Target::start();
@@ -143,7 +147,7 @@ async fn pipelined_requests_are_answered_in_order() {
         "machineid",
     ];
     let expected: Vec<i64> = vec![2, 5, 3, 4, 15, 97, 0, 9];
-    for round in 0..25 {
+    for round in 0..5 {
         for f in frames {
             c.send(f).await;
         }
