@@ -13,11 +13,14 @@
 # semihosting with a failure status), so does this script, with QEMU's
 # status.
 #
-# Usage: qemu-board.sh [--port P] [--echo] [--elf ELF] [--log FILE]
+# Usage: qemu-board.sh [--port P] [--echo] [--elf ELF] [--log FILE] [--plugin SPEC --plugin-log FILE]
 #   --port P    the host port (default 53001; 0: a free one)
 #   --echo      the echo build (feature `echo`), for the Autobahn|Testsuite
 #   --elf ELF   boot ELF instead of building (cargo run passes it)
 #   --log FILE  the board's log (defmt, decoded) goes to FILE, not stderr
+#   --plugin SPEC, --plugin-log FILE
+#               a TCG plugin for QEMU (-plugin SPEC) and where its output
+#               goes (board-instructions.sh counts instructions with one)
 # On stderr, besides the board's log: `board: ...` lines with the image's
 # flash and static RAM, the time from starting QEMU to the first answer,
 # and at the end the stack's high-water mark.
@@ -27,9 +30,11 @@ set -euo pipefail
 # shellcheck source=scripts/lib.sh
 . "$(dirname "$0")/../../scripts/lib.sh"
 
-port=53001 echo=0 elf= log=
+port=53001 echo=0 elf= log= plugin=()
 while (($#)); do
   case $1 in
+    --plugin) plugin+=(-plugin "${2:?--plugin needs a value}" -d plugin); shift ;;
+    --plugin-log) plugin+=(-D "$(realpath -m -- "${2:?--plugin-log needs a value}")"); shift ;;
     --port) port=${2:?--port needs a value}; shift ;;
     --echo) echo=1 ;;
     --elf) elf=$(realpath -- "${2:?--elf needs a value}"); shift ;;
@@ -129,12 +134,14 @@ stop() {
   exit 0
 }
 
-# QEMU's stdout carries the firmware's defmt frames (semihosting).
+# QEMU's stdout carries the firmware's defmt frames (semihosting); the
+# decoded log is also kept here, to see when the firmware serves.
 mkfifo "$work/defmt"
+: >"$work/log"
 if [[ -n $log ]]; then
-  defmt-print -e "$elf" <"$work/defmt" >>"$log" 2>&1 &
+  defmt-print -e "$elf" <"$work/defmt" 2>&1 | tee -a "$work/log" >>"$log" &
 else
-  defmt-print -e "$elf" <"$work/defmt" >&2 &
+  defmt-print -e "$elf" <"$work/defmt" 2>&1 | tee -a "$work/log" >&2 &
 fi
 log_pid=$!
 started=$(date +%s%N)
@@ -142,13 +149,19 @@ qemu-system-arm -M mps2-an500 -cpu cortex-m7 -display none -serial none \
   -monitor "unix:$work/monitor,server,nowait" \
   -semihosting-config enable=on,target=native \
   -nic "user,model=lan9118,restrict=on,hostfwd=tcp:127.0.0.1:$port-:53001" \
-  -kernel "$elf" >"$work/defmt" &
+  ${plugin[@]+"${plugin[@]}"} -kernel "$elf" >"$work/defmt" &
 qemu_pid=$!
 trap stop TERM INT
 
-# Answered once an upgrade through the forward gets its 101. Until the
-# board listens, the forward's connection is reset or gets nothing.
+# Answered once an upgrade through the forward gets its 101. The first
+# try waits for the firmware to say it serves: before its controller is
+# up, what the forward sends it is lost (and retried only seconds later).
+serving=
 answers() {
+  if [[ -z $serving ]]; then
+    grep -q 'serving on' "$work/log" || return 1
+    serving=$(date +%s%N)
+  fi
   local line=
   exec 3<>"/dev/tcp/127.0.0.1/$port" || return 1
   printf 'GET / HTTP/1.1\r\nHost: 127.0.0.1:%s\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n' \
@@ -172,7 +185,7 @@ until answers 2>/dev/null; do
   fi
   sleep 0.02
 done
-say "first answer $((($(date +%s%N) - started) / 1000000)) ms after QEMU started"
+say "serving $(((serving - started) / 1000000)) ms after QEMU started (its log says so), first answer after $((($(date +%s%N) - started) / 1000000)) ms"
 echo "listening on ws://127.0.0.1:$port"
 
 status=0
