@@ -197,7 +197,17 @@ impl Board {
 }
 
 impl Drop for Board {
+    /// Stops the board and says how deep its stack went in this test (on
+    /// stderr, which the test harness shows with `--nocapture`).
     fn drop(&mut self) {
         self.terminate();
+        if let Some(reader) = self.stderr_reader.take() {
+            let _ = reader.join();
+            let test = std::thread::current().name().unwrap_or("a test").to_owned();
+            let stderr = self.stderr();
+            if let Some(line) = stderr.lines().find(|l| l.starts_with("board: stack high-water")) {
+                eprintln!("{test}: {line}");
+            }
+        }
     }
 }
