@@ -59,7 +59,7 @@ if [[ -z $elf ]]; then
   rustup target add thumbv7em-none-eabihf >/dev/null 2>&1 || true
   build=(--release)
   # The same target dir: switching between the two rebuilds only the
-  # board's crate (its feature changes nothing below it).
+  # board's crate and the adapter's (the echo's feature reaches no further).
   ((echo)) && build+=(--features echo)
   elf=$(cd "$board" && LLUAV_PASSWORD=${LLUAV_PASSWORD:-qemu-secret} built_executable "${build[@]}")
 fi

@@ -54,7 +54,9 @@ use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY};
 use crate::error::{Error, Rejection};
 use crate::log::debug;
 use crate::receive::{Event, Reader};
-use crate::send::{Outgoing, Sender, Sent, write_reply, write_text};
+#[cfg(feature = "streamed-echo")]
+use crate::send::write_text;
+use crate::send::{Outgoing, Sender, Sent, write_reply};
 use crate::service::{Handler, Service};
 use crate::transport::{self, Transport};
 
@@ -241,6 +243,9 @@ impl<'b> Connection<'b> {
     ) -> Result<(Option<u16>, bool), Error<T::Error>> {
         let reply = self.limits.reply;
         let message = self.reader.message(event);
+        // Behind a feature: an await point in this function costs every
+        // firmware the code of its state, taken or not (700 bytes).
+        #[cfg(feature = "streamed-echo")]
         if S::ECHOES_TEXT
             && matches!(event, Event::Message)
             && let Ok(text) = message.text()

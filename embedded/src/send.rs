@@ -233,6 +233,7 @@ pub(crate) fn write_reply(
     }
 }
 
+#[cfg(feature = "streamed-echo")]
 /// Sends `payload` as one text frame, copied into the transmit buffer in
 /// as many pieces as its free space takes: for an answer that already
 /// lies elsewhere (an echo, in the message buffer), which the transmit
