@@ -105,8 +105,7 @@ def until_prompt():
         got += chunk
 until_prompt()
 s.sendall(sys.argv[2].encode() + b"\n")
-if not sys.argv[2].startswith("quit"):
-    until_prompt()
+until_prompt()
 PY
 }
 
@@ -128,7 +127,9 @@ PY
 stop() {
   trap - TERM INT
   stack_report || true
-  monitor quit >/dev/null 2>&1 || kill "$qemu_pid" 2>/dev/null || true
+  # SIGTERM is QEMU's orderly shutdown (a plugin's exit callbacks run); a
+  # monitor `quit` from a client that hangs up at once can go unread.
+  kill -TERM "$qemu_pid" 2>/dev/null || true
   wait "$qemu_pid" 2>/dev/null || true
   qemu_pid=
   exit 0
@@ -188,9 +189,17 @@ done
 say "serving $(((serving - started) / 1000000)) ms after QEMU started (its log says so), first answer after $((($(date +%s%N) - started) / 1000000)) ms"
 echo "listening on ws://127.0.0.1:$port"
 
+# Until QEMU ends on its own, or whoever started the board is gone (a test
+# process killed, a terminal closed): then stop it as SIGTERM would.
+parent=$PPID
+while kill -0 "$qemu_pid" 2>/dev/null; do
+  kill -0 "$parent" 2>/dev/null || stop
+  # In the background, so that a signal's trap runs at once.
+  sleep 1 &
+  wait $! || true
+done
 status=0
 wait "$qemu_pid" || status=$?
-# Reached when QEMU ended on its own (wait is interrupted by the traps).
 qemu_pid=
 say "QEMU ended (status $status)"
 exit $((status == 0 ? 1 : status))

@@ -12,6 +12,7 @@
 
 use std::io::{BufRead, BufReader, Read};
 use std::net::SocketAddr;
+use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
@@ -109,9 +110,12 @@ impl Board {
     /// its listening line.
     pub fn start(command: &str) -> Board {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        // A process group of its own: if the board does not stop on
+        // SIGTERM, the whole group (QEMU too) is killed, none left behind.
         let mut child = Command::new("sh")
             .arg("-c")
             .arg(format!("exec {command}"))
+            .process_group(0)
             .current_dir(root)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -151,10 +155,15 @@ impl Board {
                 stderr_reader: Some(stderr_reader),
             },
             _ => {
-                let _ = child.kill();
-                let _ = child.wait();
-                let text = stderr.lock().unwrap_or_else(|p| p.into_inner()).clone();
-                panic!("the board did not start (stdout {line:?}):\n{text}");
+                let mut board = Board {
+                    child,
+                    url: String::new(),
+                    addr: SocketAddr::from(([127, 0, 0, 1], 0)),
+                    stderr,
+                    stderr_reader: None,
+                };
+                board.terminate();
+                panic!("the board did not start (stdout {line:?}):\n{}", board.stderr());
             }
         }
     }
@@ -177,19 +186,20 @@ impl Board {
         (status, self.stderr())
     }
 
-    /// SIGTERM, never SIGKILL first (the script must stop QEMU), then the
-    /// exit status; `None` if it did not exit in time (it is killed then).
+    /// SIGTERM to the script first (it stops QEMU after reading its
+    /// stack), then the exit status; `None` if it did not exit in time,
+    /// and then its whole process group is killed.
     fn terminate(&mut self) -> Option<ExitStatus> {
         if let Ok(Some(status)) = self.child.try_wait() {
             return Some(status);
         }
-        let _ = Command::new("kill")
-            .arg("-TERM")
-            .arg(self.child.id().to_string())
-            .status();
+        let pid = self.child.id().to_string();
+        let _ = Command::new("kill").args(["-TERM", &pid]).status();
         let status = wait_timeout(&mut self.child, WAIT);
         if status.is_none() {
-            let _ = self.child.kill();
+            let _ = Command::new("kill")
+                .args(["-KILL", "--", &format!("-{pid}")])
+                .status();
             let _ = self.child.wait();
         }
         status
