@@ -27,8 +27,6 @@
 # Installs qemu-system-arm (apt-get), flip-link and defmt-print (cargo
 # install) when they are missing.
 set -euo pipefail
-# shellcheck source=scripts/lib.sh
-. "$(dirname "$0")/../../scripts/lib.sh"
 
 port=53001 echo=0 elf= log= plugin=()
 while (($#)); do
@@ -44,6 +42,9 @@ while (($#)); do
   esac
   shift
 done
+# After the arguments: their paths are relative to where we were started.
+# shellcheck source=scripts/lib.sh
+. "$(dirname "$0")/../../scripts/lib.sh"
 
 say() { printf 'board: %s\n' "$*" >&2; }
 
@@ -112,7 +113,9 @@ PY
 # How deep the stack went: the lowest word that lost its paint.
 stack_report() {
   local size=$((stack_top - stack_bottom))
-  monitor "pmemsave $stack_bottom $size \"$work/stack\"" || return 0
+  # QEMU may be gone already (a signal to the whole process group).
+  kill -0 "$qemu_pid" 2>/dev/null || return 0
+  monitor "pmemsave $stack_bottom $size \"$work/stack\"" 2>/dev/null || return 0
   python3 - "$work/stack" "$size" <<'PY' >&2
 import struct, sys
 data = open(sys.argv[1], "rb").read()
