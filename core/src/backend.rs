@@ -7,6 +7,7 @@
 //! to [`Backend::finish`] once the adapter has seen it become ready, so the
 //! core never blocks and other sessions are served meanwhile.
 
+use crate::authority::{Failsafe, Pilot};
 use crate::command::Command;
 use crate::error::Failure;
 use crate::response::Fields;
@@ -15,7 +16,7 @@ use crate::session::{Role, SessionId};
 
 /// What a backend knows about the request it runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Context {
+pub struct Context<'a> {
     /// The request's time, in milliseconds since the Unix epoch, read once
     /// from the adapter's [`Clock`]: backends never read a clock themselves.
     pub now_ms: i64,
@@ -25,6 +26,40 @@ pub struct Context {
     pub role: Role,
     /// The session running the command.
     pub session: SessionId,
+    /// The session in control of the flight, if any.
+    pub pilot: Option<&'a Pilot>,
+    /// The failsafe the backend reported at the request's time, if any.
+    pub failsafe: Option<Failsafe>,
+}
+
+impl Context<'_> {
+    /// A context with no pilot and no failsafe (for in-process callers and
+    /// tests).
+    pub fn new(now_ms: i64, lock_mode: bool, role: Role, session: SessionId) -> Self {
+        Context {
+            now_ms,
+            lock_mode,
+            role,
+            session,
+            pilot: None,
+            failsafe: None,
+        }
+    }
+
+    /// Writes the `state` members of flight authority: `"failsafe"` (the
+    /// reason, `"<reason> (overridden)"`, or `null`) and `"control"` (as
+    /// `control` answers it, without `you`, or `null`).
+    pub fn write_authority(&self, state: &mut Fields<'_>) {
+        match self.failsafe {
+            Some(f) if f.overridden => state.display("failsafe", format_args!("{} (overridden)", f.reason())),
+            Some(f) => state.display("failsafe", format_args!("{}", f.reason())),
+            None => state.null("failsafe"),
+        };
+        match self.pilot {
+            Some(p) => state.object("control", |o| p.write(o, None)),
+            None => state.null("control"),
+        };
+    }
 }
 
 /// How far a backend got with a command.
@@ -42,8 +77,9 @@ pub enum Step {
 
 /// The vehicle behind the protocol.
 ///
-/// The core runs `login`, `help`, `admin_lock`, `admin_unlock` and the
-/// session side of `passwd` itself; every other command reaches
+/// The core runs `login`, `help`, `admin_lock`, `admin_unlock`, `control`,
+/// `control_take`, `control_release` and the session side of `passwd`
+/// itself; every other command reaches
 /// [`Backend::execute`] only after all gates passed and its arguments were
 /// validated.
 pub trait Backend {
@@ -87,7 +123,37 @@ pub trait Backend {
     fn session_closed(&mut self, session: SessionId) {
         let _ = session;
     }
+
+    /// The failsafe that holds now, if any (DESIGN.md, "Flight authority":
+    /// the vehicle acting on its own for safety). Read before every
+    /// command and for `state`; a backend that cannot fly has none.
+    fn failsafe(&self) -> Option<Failsafe> {
+        None
+    }
+
+    /// The session in control overrides the current failsafe (`control_take
+    /// failsafe`): from now on [`Backend::failsafe`] reports it overridden,
+    /// until the vehicle is disarmed on the ground or another reason
+    /// starts. An `Err` is answered and nothing changes.
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        Ok(())
+    }
+
+    /// Whether a mission is running (so `abort_report` would stop it and
+    /// counts as steering).
+    fn mission_running(&self) -> bool {
+        false
+    }
+
+    /// How long control lasts without a request from its session, ms
+    /// (the vehicle's `control_timeout`).
+    fn control_timeout_ms(&self) -> u32 {
+        DEFAULT_CONTROL_TIMEOUT_MS
+    }
 }
+
+/// The control timeout of a backend that has no parameter for it: 30 s.
+pub const DEFAULT_CONTROL_TIMEOUT_MS: u32 = 30_000;
 
 /// The source of `ts` and [`Context::now_ms`]: milliseconds since the Unix
 /// epoch.

@@ -144,6 +144,8 @@ pub enum Args<'a> {
         /// Relative path of the mission file.
         file: &'a str,
     },
+    /// `control_take [failsafe]`: whether the word `failsafe` was given.
+    Override(bool),
 }
 
 impl Args<'_> {
@@ -172,6 +174,7 @@ impl Args<'_> {
             Args::Mission { .. } => Grammar::Mission,
             Args::MwExec { .. } => Grammar::MwExec,
             Args::Ai1Mission { .. } => Grammar::Ai1Mission,
+            Args::Override(_) => Grammar::Override,
         }
     }
 }

@@ -16,7 +16,12 @@ impl Command<'_> {
         w.write_str(self.id().name())?;
         let arg = |w: &mut W| w.write_char(' ');
         match self.args() {
-            Args::None | Args::OptCount(None) | Args::OptAmount(None) | Args::OptName(None) => Ok(()),
+            Args::None
+            | Args::OptCount(None)
+            | Args::OptAmount(None)
+            | Args::OptName(None)
+            | Args::Override(false) => Ok(()),
+            Args::Override(true) => w.write_str(" failsafe"),
             Args::Flag(on) => {
                 arg(w)?;
                 w.write_char(if *on { '1' } else { '0' })

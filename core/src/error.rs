@@ -248,6 +248,22 @@ pub mod messages {
     pub const TOO_LARGE: &str = "Response too large";
     /// A fault while processing.
     pub const UNHANDLED: &str = "Unhandled exception";
+    /// A failsafe refusal starts so; the failsafe's reason follows.
+    pub const FAILSAFE_OPEN: &str = "Vehicle is in failsafe (";
+    /// ... and ends so for a command that would steer.
+    pub const FAILSAFE_MOTION: &str = "): land, rtl or control_take failsafe";
+    /// ... and so for a return while the failsafe lands the vehicle.
+    pub const FAILSAFE_LANDING: &str = "): land, tether_land, disarm or control_take failsafe";
+    /// ... and so for a plain `control_take` during a failsafe.
+    pub const FAILSAFE_TAKE: &str = "): control_take failsafe overrides it";
+    /// Another session is in control; its label follows.
+    pub const FLOWN_BY: &str = "Vehicle is flown by ";
+    /// ... then since when (ms since the Unix epoch) ...
+    pub const FLOWN_SINCE: &str = " since ";
+    /// ... then what to do.
+    pub const FLOWN_TAKE: &str = ": control_take to take over";
+    /// `control_release` from a session that does not hold control.
+    pub const NOT_IN_CONTROL: &str = "This session is not in control";
     /// How many bytes of an unknown name are echoed back.
     pub const UNKNOWN_NAME_ECHO: usize = 32;
 }

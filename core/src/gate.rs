@@ -1,13 +1,18 @@
 //! The gates, in DESIGN.md's order: login → (name lookup) → admin-only →
-//! armed → lock. Admins skip the lock gate.
+//! armed → lock → failsafe → control. Admins skip the lock gate.
 //!
-//! The safety invariant — `land`, `rtl`, `mrtl`, `tether_land`, `disarm`
-//! and `set_sp_ned` are never refused by the armed or lock gate — follows
-//! from their table flags and is proven by the tests.
+//! The safety invariant — `land`, `rtl`, `mrtl`, `tether_land` and `disarm`
+//! are never refused by the armed, lock or control gate, nor by the
+//! failsafe gate except `rtl`/`mrtl` while a failsafe lands the vehicle —
+//! follows from their table flags and class and is proven by the tests.
+//! `set_sp_ned` is never refused by the armed or lock gate; who may steer
+//! is the control gate's business.
 
-use crate::error::Refusal;
+use crate::authority::{Control, Failsafe, Pilot};
+use crate::error::{Failure, Refusal, Ret, messages};
+use crate::response::Fields;
 use crate::session::{Auth, Session};
-use crate::table::Flags;
+use crate::table::{Class, Flags};
 use crate::throttle::Slots;
 
 /// The login gate: with a password set, only a logged-in session passes.
@@ -38,4 +43,74 @@ pub fn command<S: Slots>(
         return Err(Refusal::Locked);
     }
     Ok(())
+}
+
+/// Why the failsafe or control gate refused a command (DESIGN.md, "Flight
+/// authority").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Held<'a> {
+    /// A failsafe holds and the command would steer.
+    Failsafe(Failsafe),
+    /// A failsafe lands the vehicle and the command would climb.
+    Landing(Failsafe),
+    /// Another session is in control and the command would steer.
+    Flown(&'a Pilot),
+}
+
+impl Held<'_> {
+    /// Writes the refusal's message into the response (-1).
+    pub fn fail(&self, out: &mut Fields<'_>) -> Failure {
+        match self {
+            Held::Failsafe(f) => out.fail(
+                Ret::Failed,
+                format_args!(
+                    "{}{}{}",
+                    messages::FAILSAFE_OPEN,
+                    f.reason(),
+                    messages::FAILSAFE_MOTION
+                ),
+            ),
+            Held::Landing(f) => out.fail(
+                Ret::Failed,
+                format_args!(
+                    "{}{}{}",
+                    messages::FAILSAFE_OPEN,
+                    f.reason(),
+                    messages::FAILSAFE_LANDING
+                ),
+            ),
+            Held::Flown(p) => out.fail(
+                Ret::Failed,
+                format_args!(
+                    "{}{}{}{}{}",
+                    messages::FLOWN_BY,
+                    p.label(),
+                    messages::FLOWN_SINCE,
+                    p.since_ms(),
+                    messages::FLOWN_TAKE
+                ),
+            ),
+        }
+    }
+}
+
+/// The failsafe gate: while a failsafe holds (not overridden), commands
+/// that steer are refused, and so are those that climb to return home
+/// while it lands the vehicle. `steers` is whether this command would
+/// steer now ([`Class::steers`]).
+pub fn failsafe(class: Class, steers: bool, failsafe: Option<Failsafe>) -> Result<(), Held<'static>> {
+    match failsafe {
+        Some(f) if f.holds() && steers => Err(Held::Failsafe(f)),
+        Some(f) if f.holds() && f.landing() && class == Class::Return => Err(Held::Landing(f)),
+        _ => Ok(()),
+    }
+}
+
+/// The control gate: a command that steers runs only from the session in
+/// control, or from any session while control is free.
+pub fn control<'c>(steers: bool, session: &Session, control: &'c Control) -> Result<(), Held<'c>> {
+    match control.pilot() {
+        Some(p) if steers && p.session() != session.id() => Err(Held::Flown(p)),
+        _ => Ok(()),
+    }
 }

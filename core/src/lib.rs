@@ -10,6 +10,8 @@
 //! - [`parse()`] / [`Command::encode`]: frame ↔ typed [`Command`], mirror
 //!   images of each other, borrowing from the frame;
 //! - [`gate`] and [`session`]: login, admin, armed and lock gates;
+//! - [`authority`]: who flies (one session in control) and the failsafes
+//!   no motion command cancels, gated before the backend;
 //! - [`response`]: JSON responses in caller-provided fixed buffers;
 //! - [`Backend`] and [`Clock`]: what an adapter supplies;
 //! - [`throttle`]: password guessing limited per client and across all;
@@ -48,6 +50,7 @@
     clippy::panic
 )]
 
+pub mod authority;
 pub mod backend;
 pub mod command;
 mod encode;
@@ -62,7 +65,8 @@ pub mod table;
 pub mod throttle;
 pub mod websocket;
 
-pub use backend::{Backend, Clock, Context, Step, Ticket};
+pub use authority::{Action, Control, Failsafe, Label, Pilot, Via};
+pub use backend::{Backend, Clock, Context, DEFAULT_CONTROL_TIMEOUT_MS, Step, Ticket};
 pub use command::{Args, Command, LandPoint, MAX_HEIGHTS, MAX_WAYPOINT_IDS, Payload, Point, Pose};
 pub use error::{ArgError, Failure, ParseError, Refusal, Ret};
 pub use number::Number;
@@ -70,4 +74,4 @@ pub use parse::parse;
 pub use response::{Fields, Items, MIN_RESPONSE_CAPACITY};
 pub use server::{CloseCode, Message, Outcome, Server};
 pub use session::{Auth, AuthError, LoginOutcome, Peer, Role, Session, SessionId};
-pub use table::{CommandId, Flags, Grammar, Section, Spec, TABLE};
+pub use table::{Class, CommandId, Effect, Flags, Grammar, Section, Spec, TABLE};

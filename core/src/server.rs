@@ -4,19 +4,21 @@
 //! [`Server::handle`] runs the whole protocol: DESIGN.md's WebSocket close
 //! policy ([`Message::text`]), the gates in order, argument parsing, the
 //! session commands the core owns (`login`, `help`, `admin_lock`,
-//! `admin_unlock`, `passwd`), the backend, and the response. Adapters own
+//! `admin_unlock`, `passwd`, and flight authority's `control`,
+//! `control_take`, `control_release`), the backend, and the response. Adapters own
 //! sockets and framing only: they open a [`Session`] per connection with
 //! [`Server::open`], hand every message to [`Server::handle`], carry out the
 //! [`Outcome`] (calling [`Server::resume`] once a pending backend is ready)
 //! and report the end of the connection with [`Server::close`].
 
+use crate::authority::{Control, Label, Via};
 use crate::backend::{Backend, Clock, Context, Step, Ticket};
 use crate::command::{Args, Command};
 use crate::error::{Failure, ParseError, Refusal, Ret, messages};
 use crate::gate;
 use crate::parse::{self, Split};
 use crate::response::{self, Fields};
-use crate::session::{Auth, LoginOutcome, Peer, Session, SessionId};
+use crate::session::{Auth, LoginOutcome, Peer, Pending, Session, SessionId};
 use crate::table::{CommandId, TABLE, lookup};
 use crate::throttle::{DefaultSlots, Slots};
 
@@ -119,6 +121,8 @@ pub struct Server<B, C, S = DefaultSlots> {
     backend: B,
     clock: C,
     auth: Auth<S>,
+    /// Who flies (DESIGN.md, "Flight authority").
+    control: Control,
     /// The last [`SessionId`] handed out.
     last_session: u32,
 }
@@ -132,8 +136,9 @@ enum Answer<'a> {
     /// An error whose message the backend owns, and where the message ends
     /// in the buffer if [`Fields::fail`] wrote it there.
     Failed(u8, Failure, Option<usize>),
-    /// The backend is waiting for something outside.
-    Pending(CommandId, Ticket),
+    /// The backend is waiting for something outside; whether the command
+    /// takes control once it answers 0.
+    Pending(CommandId, Ticket, bool),
 }
 
 impl<'a> Answer<'a> {
@@ -150,7 +155,7 @@ impl<'a> Answer<'a> {
         let cmd = u8::from(id);
         match (result, fields.end()) {
             (Err(f), _) => Answer::Failed(cmd, f, fields.failure_end()),
-            (Ok(Step::Pending(ticket)), _) => Answer::Pending(id, ticket),
+            (Ok(Step::Pending(ticket)), _) => Answer::Pending(id, ticket, false),
             (Ok(Step::Done), Some(end)) => Answer::Done(cmd, end),
             (Ok(Step::Done), None) => Answer::Error(Ret::Failed, cmd, [messages::TOO_LARGE, ""]),
         }
@@ -164,6 +169,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             backend,
             clock,
             auth,
+            control: Control::default(),
             last_session: 0,
         }
     }
@@ -188,17 +194,54 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         &mut self.auth
     }
 
-    /// A session for a new connection from `peer` (who login throttling
-    /// counts its wrong passwords for: its IP address, or a per-client key;
-    /// `None` if the transport has neither).
-    pub fn open(&mut self, peer: Option<Peer>) -> Session {
-        self.last_session = self.last_session.wrapping_add(1).max(1);
-        Session::with(SessionId(self.last_session), peer)
+    /// Who flies the vehicle (DESIGN.md, "Flight authority").
+    pub fn control(&self) -> &Control {
+        &self.control
     }
 
-    /// Reports that `session`'s connection has ended.
+    /// A session for a new in-process connection from `peer` (who login
+    /// throttling counts its wrong passwords for: its IP address, or a
+    /// per-client key; `None` if the transport has neither). Transports
+    /// use [`Server::open_via`], so that `control` can say who flies.
+    pub fn open(&mut self, peer: Option<Peer>) -> Session {
+        self.open_via(peer, Via::Local)
+    }
+
+    /// A session for a new connection from `peer`, reached `via` a
+    /// transport (its label in `control`).
+    pub fn open_via(&mut self, peer: Option<Peer>, via: Via<'_>) -> Session {
+        self.last_session = self.last_session.wrapping_add(1).max(1);
+        let id = SessionId(self.last_session);
+        let mut session = Session::with(id, peer);
+        session.set_label(Label::new(via, id));
+        session
+    }
+
+    /// Reports that `session`'s connection has ended: control it held is
+    /// free (the flight goes on).
     pub fn close(&mut self, session: &Session) {
+        self.control.release(session.id());
         self.backend.session_closed(session.id());
+    }
+
+    /// When control lapses unless its session speaks first, ms since the
+    /// Unix epoch; `None` while control is free. An adapter that tells
+    /// others when control lapses waits until then and calls
+    /// [`Server::expire_control`].
+    pub fn control_lapses_at(&self) -> Option<i64> {
+        let timeout = i64::from(self.backend.control_timeout_ms());
+        self.control.pilot().map(|p| p.last_ms().saturating_add(timeout))
+    }
+
+    /// Ends control held without a request for the backend's control
+    /// timeout; returns whether it did. Checked before every request
+    /// anyway; an adapter that tells others when control lapses calls it
+    /// when the timeout may have passed.
+    pub fn expire_control(&mut self) -> bool {
+        let now = self.clock.unix_ms();
+        self.control
+            .expire(now, self.backend.control_timeout_ms())
+            .is_some()
     }
 
     /// Handles one WebSocket message of `session`, writing the response
@@ -217,6 +260,8 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             Err(code) => return Outcome::Close(code),
         };
         let now = self.clock.unix_ms();
+        self.control.expire(now, self.backend.control_timeout_ms());
+        self.control.heard(session.id(), now);
         let mut close = None;
         let answer = self.answer(session, text, now, out, &mut close);
         write(session, answer, now, close, out)
@@ -227,24 +272,56 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
     /// A session that waits for nothing is closed with 1011: the adapter
     /// broke the contract.
     pub fn resume<'o>(&mut self, session: &mut Session, out: &'o mut [u8]) -> Outcome<'o> {
-        let Some((ticket, id)) = session.pending() else {
+        let Some(Pending {
+            ticket,
+            id,
+            takes_control,
+        }) = session.take_pending()
+        else {
             return Outcome::Close(CloseCode::InternalError);
         };
-        session.set_pending(None);
         let now = self.clock.unix_ms();
-        let ctx = self.context(session, now);
+        let ctx = context(&self.backend, &self.control, &self.auth, session, now);
         let mut fields = Fields::after_head(out, u8::from(id), now);
         let result = self.backend.finish(ticket, &ctx, &mut fields);
-        let answer = Answer::settled(id, result, &fields);
+        let answer = self.took_effect(
+            session,
+            id,
+            takes_control,
+            now,
+            Answer::settled(id, result, &fields),
+        );
         write(session, answer, now, None, out)
     }
 
-    fn context(&self, session: &Session, now_ms: i64) -> Context {
-        Context {
-            now_ms,
-            lock_mode: self.auth.lock_mode(),
-            role: session.role(),
-            session: session.id(),
+    /// Control after a command that steered or brought the vehicle down
+    /// answered 0 (or, pending, will decide that later): it goes to the
+    /// command's session — except that in lock mode an admin pilot keeps
+    /// it against a conservative command.
+    fn took_effect<'a>(
+        &mut self,
+        session: &Session,
+        id: CommandId,
+        takes_control: bool,
+        now: i64,
+        answer: Answer<'a>,
+    ) -> Answer<'a> {
+        match answer {
+            Answer::Done(..) if takes_control => {
+                // Taking control, it either steered or brought the vehicle down.
+                let steered = !id.spec().class.conservative();
+                let admin_keeps = self.auth.lock_mode()
+                    && self
+                        .control
+                        .pilot()
+                        .is_some_and(|p| p.admin() && p.session() != session.id());
+                if steered || !admin_keeps {
+                    self.control.give(session, now);
+                }
+                answer
+            }
+            Answer::Pending(id, ticket, _) => Answer::Pending(id, ticket, takes_control),
+            other => other,
         }
     }
 
@@ -274,13 +351,23 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         if let Err(r) = gate::command(&spec.flags, session, &self.auth, || backend.armed()) {
             return Answer::refused(cmd, r);
         }
+        let steers = spec.class.steers(|| backend.mission_running());
+        let held = gate::failsafe(spec.class, steers, backend.failsafe())
+            .and_then(|()| gate::control(steers, session, &self.control));
+        if let Err(held) = held {
+            let mut fields = Fields::after_head(out, cmd, now);
+            let failure = held.fail(&mut fields);
+            return Answer::settled(spec.id, Err(failure), &fields);
+        }
         let command = match parse::parse_args(spec, args) {
             Ok(c) => c,
             Err(e) => return Answer::invalid(e),
         };
         let mut fields = Fields::after_head(out, cmd, now);
         let result = self.run(session, &command, now, &mut fields, close);
-        Answer::settled(spec.id, result, &fields)
+        let takes_control = steers || spec.class.conservative();
+        let answer = Answer::settled(spec.id, result, &fields);
+        self.took_effect(session, spec.id, takes_control, now, answer)
     }
 
     /// Runs a command that passed every gate.
@@ -308,12 +395,64 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
                 out.bool("lock_mode", self.auth.lock_mode());
             }
             (CommandId::Passwd, Args::NewPassword(new)) => self.passwd(session, new)?,
+            (CommandId::Control, _) => {
+                match self.control.pilot() {
+                    Some(p) => out.object("control", |o| p.write(o, Some(p.session() == session.id()))),
+                    None => out.null("control"),
+                };
+            }
+            (CommandId::ControlTake, &Args::Override(word)) => self.take_control(session, word, now, out)?,
+            (CommandId::ControlRelease, _) => {
+                if self.control.release(session.id()).is_none() {
+                    return Err(Failure::failed(messages::NOT_IN_CONTROL));
+                }
+                out.null("control");
+            }
             _ => {
-                let ctx = self.context(session, now);
+                let ctx = context(&self.backend, &self.control, &self.auth, session, now);
                 return self.backend.execute(command, &ctx, out);
             }
         }
         Ok(Step::Done)
+    }
+
+    /// `control_take [failsafe]`: takes control, even from a connected
+    /// pilot; during a failsafe only with the word `failsafe`, which
+    /// overrides it. In lock mode only an admin takes it from an admin.
+    fn take_control(
+        &mut self,
+        session: &Session,
+        word: bool,
+        now: i64,
+        out: &mut Fields<'_>,
+    ) -> Result<(), Failure> {
+        let from_admin = self
+            .control
+            .pilot()
+            .is_some_and(|p| p.admin() && p.session() != session.id());
+        if from_admin && self.auth.lock_mode() && !session.admin() {
+            return Err(Failure::failed(messages::LOCKED));
+        }
+        match self.backend.failsafe() {
+            Some(f) if f.holds() && !word => {
+                return Err(out.fail(
+                    Ret::Failed,
+                    format_args!(
+                        "{}{}{}",
+                        messages::FAILSAFE_OPEN,
+                        f.reason(),
+                        messages::FAILSAFE_TAKE
+                    ),
+                ));
+            }
+            Some(f) if f.holds() => self.backend.override_failsafe()?,
+            _ => {}
+        }
+        self.control.give(session, now);
+        if let Some(p) = self.control.pilot() {
+            out.object("control", |o| p.write(o, Some(true)));
+        }
+        Ok(())
     }
 
     fn login(
@@ -349,6 +488,24 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
     }
 }
 
+/// What the backend knows about a request: read once, at its time.
+fn context<'c, B: Backend, S: Slots>(
+    backend: &B,
+    control: &'c Control,
+    auth: &Auth<S>,
+    session: &Session,
+    now_ms: i64,
+) -> Context<'c> {
+    Context {
+        now_ms,
+        lock_mode: auth.lock_mode(),
+        role: session.role(),
+        session: session.id(),
+        pilot: control.pilot(),
+        failsafe: backend.failsafe(),
+    }
+}
+
 /// Writes `answer` into `out` (or records a pending one in `session`).
 fn write<'o>(
     session: &mut Session,
@@ -368,8 +525,12 @@ fn write<'o>(
             // client's; say so rather than send a message that isn't there.
             (true, None) => response::write_error(out, Ret::Unhandled, cmd, ts, &[messages::UNHANDLED]),
         },
-        Answer::Pending(id, ticket) => {
-            session.set_pending(Some((ticket, id)));
+        Answer::Pending(id, ticket, takes_control) => {
+            session.set_pending(Pending {
+                ticket,
+                id,
+                takes_control,
+            });
             return Outcome::Pending(ticket, out);
         }
     };

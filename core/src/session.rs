@@ -6,6 +6,7 @@
 //! password, the two special login values, lock mode and the [`Throttle`].
 //! Passwords are compared in constant time.
 
+use crate::authority::Label;
 use crate::error::ArgError;
 use crate::parse::MAX_PASSWORD_LEN;
 use crate::table::CommandId;
@@ -47,9 +48,19 @@ pub struct Ticket(pub u32);
 pub struct Session {
     id: SessionId,
     peer: Option<Peer>,
+    label: Label,
     role: Role,
     wrong_passwords: u8,
-    pending: Option<(Ticket, CommandId)>,
+    pending: Option<Pending>,
+}
+
+/// A command the session waits for, and whether it takes control of the
+/// flight once it answers 0 (it steered, or brought the vehicle down).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Pending {
+    pub(crate) ticket: Ticket,
+    pub(crate) id: CommandId,
+    pub(crate) takes_control: bool,
 }
 
 impl Session {
@@ -64,6 +75,7 @@ impl Session {
         Session {
             id,
             peer,
+            label: Label::EMPTY,
             role: Role::Anonymous,
             wrong_passwords: 0,
             pending: None,
@@ -78,6 +90,15 @@ impl Session {
     /// Who the client is, as the adapter gave it.
     pub fn peer(&self) -> Option<Peer> {
         self.peer
+    }
+
+    /// Who the session is, as `control` names it.
+    pub fn label(&self) -> &Label {
+        &self.label
+    }
+
+    pub(crate) fn set_label(&mut self, label: Label) {
+        self.label = label;
     }
 
     /// What the session may do.
@@ -102,11 +123,15 @@ impl Session {
 
     /// The command the session waits for the backend to finish, if any.
     pub fn pending(&self) -> Option<(Ticket, CommandId)> {
-        self.pending
+        self.pending.map(|p| (p.ticket, p.id))
     }
 
-    pub(crate) fn set_pending(&mut self, pending: Option<(Ticket, CommandId)>) {
-        self.pending = pending;
+    pub(crate) fn take_pending(&mut self) -> Option<Pending> {
+        self.pending.take()
+    }
+
+    pub(crate) fn set_pending(&mut self, pending: Pending) {
+        self.pending = Some(pending);
     }
 }
 

@@ -58,6 +58,8 @@ pub enum Grammar {
     MwExec,
     /// `task_id:mission_file`, split at the first colon.
     Ai1Mission,
+    /// Nothing, or the word `failsafe` (`control_take`).
+    Override,
 }
 
 /// The heading a command stands under in the specification's Command
@@ -89,6 +91,9 @@ pub enum Section {
     Lidar,
     /// Other.
     Other,
+    /// lluav's own extensions, after the specification's commands: who is
+    /// in control of the flight (DESIGN.md, "Flight authority").
+    Control,
 }
 
 /// Gate flags of one command (DESIGN.md, "Sessions and gates").
@@ -111,6 +116,85 @@ impl Flags {
     };
 }
 
+/// What a command does to the flight, for the failsafe and control gates
+/// (DESIGN.md, "Flight authority").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Class {
+    /// Gives the vehicle a place to go or sets it moving: only the session
+    /// in control (or any session while control is free) may send it, and
+    /// never during a failsafe.
+    Motion,
+    /// Motion while a mission runs, because it stops the mission; neither
+    /// otherwise (`abort_report` also closes a report).
+    StopsMission,
+    /// Brings the vehicle down: open to every logged-in session, passes
+    /// control to its sender.
+    Conservative,
+    /// Conservative, but climbs first to return home (`rtl`, `mrtl`): also
+    /// refused while a failsafe lands the vehicle.
+    Return,
+    /// Neither.
+    Neutral,
+}
+
+impl Class {
+    /// Whether a command of this class steers the vehicle, given whether a
+    /// mission is running (asked only for [`Class::StopsMission`]).
+    pub fn steers(self, mission_running: impl FnOnce() -> bool) -> bool {
+        match self {
+            Class::Motion => true,
+            Class::StopsMission => mission_running(),
+            Class::Conservative | Class::Return | Class::Neutral => false,
+        }
+    }
+
+    /// Whether it brings the vehicle down or home.
+    pub fn conservative(self) -> bool {
+        matches!(self, Class::Conservative | Class::Return)
+    }
+}
+
+/// What running a command changes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Effect {
+    /// Nothing: running it twice is running it once.
+    Read,
+    /// This session only (`login`, `control*`), and nothing that outlives
+    /// it.
+    Session,
+    /// The vehicle or what it keeps.
+    Vehicle,
+}
+
+/// A command's gate flags, class and effect, as a row's marks build them.
+#[derive(Clone, Copy, Debug)]
+struct Marks {
+    flags: Flags,
+    class: Class,
+    effect: Effect,
+}
+
+impl Marks {
+    /// Unmarked: open to every session, neutral, changes the vehicle.
+    const NONE: Marks = Marks {
+        flags: Flags::OPEN,
+        class: Class::Neutral,
+        effect: Effect::Vehicle,
+    };
+
+    const fn flags(self, flags: Flags) -> Marks {
+        Marks { flags, ..self }
+    }
+
+    const fn class(self, class: Class) -> Marks {
+        Marks { class, ..self }
+    }
+
+    const fn effect(self, effect: Effect) -> Marks {
+        Marks { effect, ..self }
+    }
+}
+
 /// Everything the protocol knows about one command.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Spec {
@@ -124,6 +208,10 @@ pub struct Spec {
     pub grammar: Grammar,
     /// Gate flags.
     pub flags: Flags,
+    /// What it does to the flight.
+    pub class: Class,
+    /// What running it changes.
+    pub effect: Effect,
     /// The usage line, e.g. `set_sp_ned x:y:z:yaw`.
     pub usage: &'static str,
 }
@@ -136,12 +224,20 @@ impl Spec {
     }
 }
 
-// `NO_ARM` = runOnArm=false, `NO_LOCK` = runInLock=false, `ADMIN` = admin only.
-macro_rules! flags {
-    () => { Flags::OPEN };
-    (NO_ARM $($rest:ident)*) => { Flags { run_on_arm: false, ..flags!($($rest)*) } };
-    (NO_LOCK $($rest:ident)*) => { Flags { run_in_lock: false, ..flags!($($rest)*) } };
-    (ADMIN $($rest:ident)*) => { Flags { admin_only: true, ..flags!($($rest)*) } };
+// A row's marks: `NO_ARM` = runOnArm=false, `NO_LOCK` = runInLock=false,
+// `ADMIN` = admin only; `MOTION`, `STOPS_MISSION`, `CONSERVATIVE` = its
+// class (`RETURN`: conservative and climbs; else neutral); `READ`, `SESSION` = its effect (else vehicle).
+macro_rules! marks {
+    () => { Marks::NONE };
+    (NO_ARM $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { run_on_arm: false, ..m.flags }) } };
+    (NO_LOCK $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { run_in_lock: false, ..m.flags }) } };
+    (ADMIN $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { admin_only: true, ..m.flags }) } };
+    (MOTION $($rest:ident)*) => { marks!($($rest)*).class(Class::Motion) };
+    (STOPS_MISSION $($rest:ident)*) => { marks!($($rest)*).class(Class::StopsMission) };
+    (CONSERVATIVE $($rest:ident)*) => { marks!($($rest)*).class(Class::Conservative) };
+    (RETURN $($rest:ident)*) => { marks!($($rest)*).class(Class::Return) };
+    (READ $($rest:ident)*) => { marks!($($rest)*).effect(Effect::Read) };
+    (SESSION $($rest:ident)*) => { marks!($($rest)*).effect(Effect::Session) };
 }
 
 macro_rules! command_table {
@@ -162,7 +258,9 @@ macro_rules! command_table {
                 name: $name,
                 section: Section::$section,
                 grammar: Grammar::$grammar,
-                flags: flags!($($flag)*),
+                flags: marks!($($flag)*).flags,
+                class: marks!($($flag)*).class,
+                effect: marks!($($flag)*).effect,
                 usage: $usage,
             }, )* )*
         ];
@@ -189,59 +287,59 @@ macro_rules! command_table {
 
 command_table! {
     Authentication {
-        1 Login "login" Secret [] "login <password>" "Log this session in (1025: admin, 0315: log out).";
+        1 Login "login" Secret [SESSION] "login <password>" "Log this session in (1025: admin, 0315: log out).";
     }
     State {
-        2 State "state" None [] "state" "Full FSM state.";
-        3 Param "param" None [] "param" "All parameters.";
-        4 GetParam "get_param" ParamName [] "get_param name" "One parameter.";
-        5 Ver "ver" None [] "ver" "Version information.";
-        6 Sysinfo "sysinfo" None [] "sysinfo" "Uptime, RAM and loads.";
-        7 Diskusage "diskusage" None [] "diskusage" "Free disk space.";
-        8 Statics "statics" None [] "statics" "Communication and recording statistics.";
-        9 Machineid "machineid" None [] "machineid" "Unique hardware id.";
-        10 Hud1 "hud1" None [] "hud1" "Keyframes, ENU position and extras.";
-        11 Lidarpose "lidarpose" None [] "lidarpose" "Lidar pose.";
-        12 ApronState "apron_state" None [] "apron_state" "Charging pad status.";
-        13 MavlinkMsgs "mavlink_msgs" None [] "mavlink_msgs" "MAVLink message counts.";
-        14 GetSubmapInfo "get_submap_info" None [] "get_submap_info" "Map id and keyframe count.";
-        15 ShowSp "show_sp" None [] "show_sp" "Current setpoint.";
-        16 ShowApguid2 "show_apguid2" None [] "show_apguid2" "Autopilot guid2.";
-        17 Showmsg "showmsg" OptCount [] "showmsg [count]" "Recent log messages.";
+        2 State "state" None [READ] "state" "Full FSM state.";
+        3 Param "param" None [READ] "param" "All parameters.";
+        4 GetParam "get_param" ParamName [READ] "get_param name" "One parameter.";
+        5 Ver "ver" None [READ] "ver" "Version information.";
+        6 Sysinfo "sysinfo" None [READ] "sysinfo" "Uptime, RAM and loads.";
+        7 Diskusage "diskusage" None [READ] "diskusage" "Free disk space.";
+        8 Statics "statics" None [READ] "statics" "Communication and recording statistics.";
+        9 Machineid "machineid" None [READ] "machineid" "Unique hardware id.";
+        10 Hud1 "hud1" None [READ] "hud1" "Keyframes, ENU position and extras.";
+        11 Lidarpose "lidarpose" None [READ] "lidarpose" "Lidar pose.";
+        12 ApronState "apron_state" None [READ] "apron_state" "Charging pad status.";
+        13 MavlinkMsgs "mavlink_msgs" None [READ] "mavlink_msgs" "MAVLink message counts.";
+        14 GetSubmapInfo "get_submap_info" None [READ] "get_submap_info" "Map id and keyframe count.";
+        15 ShowSp "show_sp" None [READ] "show_sp" "Current setpoint.";
+        16 ShowApguid2 "show_apguid2" None [READ] "show_apguid2" "Autopilot guid2.";
+        17 Showmsg "showmsg" OptCount [READ] "showmsg [count]" "Recent log messages.";
     }
     Flight {
-        18 Takeoff "takeoff" None [NO_ARM] "takeoff" "Take off.";
-        19 Land "land" None [] "land" "Emergency land.";
-        20 Rtl "rtl" None [] "rtl" "Return to launch.";
-        21 Mrtl "mrtl" None [] "mrtl" "Mission return to launch.";
-        22 TetherLand "tether_land" None [] "tether_land" "Tethered landing.";
-        23 SetSpNed "set_sp_ned" Setpoint [] "set_sp_ned x:y:z:yaw" "Set the NED setpoint (metres, radians).";
+        18 Takeoff "takeoff" None [NO_ARM MOTION] "takeoff" "Take off.";
+        19 Land "land" None [CONSERVATIVE] "land" "Emergency land.";
+        20 Rtl "rtl" None [RETURN] "rtl" "Return to launch.";
+        21 Mrtl "mrtl" None [RETURN] "mrtl" "Mission return to launch.";
+        22 TetherLand "tether_land" None [CONSERVATIVE] "tether_land" "Tethered landing.";
+        23 SetSpNed "set_sp_ned" Setpoint [MOTION] "set_sp_ned x:y:z:yaw" "Set the NED setpoint (metres, radians).";
         24 Tunnelfly "tunnelfly" Flag [] "tunnelfly 0|1" "Tunnel fly mode off/on.";
-        25 Disarm "disarm" None [] "disarm" "Force disarm.";
+        25 Disarm "disarm" None [CONSERVATIVE] "disarm" "Force disarm.";
         26 Sleep "sleep" None [NO_ARM] "sleep" "Enter sleep mode.";
         27 Wakeup "wakeup" None [] "wakeup" "Wake from sleep.";
         28 AutosleepEnable "autosleep_enable" Flag [NO_ARM NO_LOCK] "autosleep_enable 0|1" "Auto-sleep off/on.";
-        29 Zyhk "zyhk" Zyhk [] "zyhk h1,h2,... [lx,ly,lyaw]" "Hover at several heights, then land.";
+        29 Zyhk "zyhk" Zyhk [MOTION] "zyhk h1,h2,... [lx,ly,lyaw]" "Hover at several heights, then land.";
         30 RelocatePos "relocate_pos" Pose [NO_ARM] "relocate_pos x,y,z,yaw" "Relocate the position (needs map_locate).";
     }
     Mission {
         31 Mission "mission" Mission [] "mission ext_id:path_or_json" "Submit a mission.";
         32 Plan "plan" Text [] "plan plan_string" "Start a flight plan.";
         33 UnlockPlan "unlock_plan" None [NO_LOCK] "unlock_plan" "Clear the plan execution lock.";
-        34 MwList "mw_list" None [] "mw_list" "List mission waypoints.";
-        35 MwExec "mw_exec" MwExec [] "mw_exec ext_id:id,id,..." "Execute waypoints by id.";
+        34 MwList "mw_list" None [READ] "mw_list" "List mission waypoints.";
+        35 MwExec "mw_exec" MwExec [MOTION] "mw_exec ext_id:id,id,..." "Execute waypoints by id.";
         36 Ai1Mission "ai1_mission" Ai1Mission [] "ai1_mission task_id:mission_file" "Submit an AI1 mission.";
         37 ObsMission "obs_mission" Flag [] "obs_mission 0|1" "Obstacle mission live mode off/on.";
-        38 DumpMissionresult "dump_missionresult" OptCount [] "dump_missionresult [ext_id]" "Dump a mission result.";
-        39 DumpMissionlist "dump_missionlist" None [] "dump_missionlist" "Dump the short mission request list.";
-        40 AbortReport "abort_report" OptCount [] "abort_report [abort_id]" "Abort or finish a mission report.";
+        38 DumpMissionresult "dump_missionresult" OptCount [READ] "dump_missionresult [ext_id]" "Dump a mission result.";
+        39 DumpMissionlist "dump_missionlist" None [READ] "dump_missionlist" "Dump the short mission request list.";
+        40 AbortReport "abort_report" OptCount [STOPS_MISSION] "abort_report [abort_id]" "Abort or finish a mission report.";
         41 SetTaskname "set_taskname" Text [] "set_taskname name" "Set the current task name.";
     }
     Map {
         42 Savemap "savemap" Name [NO_ARM NO_LOCK] "savemap name" "Save the current map.";
         43 SetMaplocate "set_maplocate" Flag [NO_ARM NO_LOCK] "set_maplocate 0|1" "Map localisation off/on.";
         44 SetMappath "set_mappath" Path [NO_ARM NO_LOCK] "set_mappath path" "Set the localisation map path.";
-        45 ListMaps "list_maps" None [] "list_maps" "List saved maps.";
+        45 ListMaps "list_maps" None [READ] "list_maps" "List saved maps.";
         46 RmMap "rm_map" Name [NO_ARM NO_LOCK] "rm_map name" "Remove a saved map.";
     }
     Camera {
@@ -286,7 +384,7 @@ command_table! {
     }
     Lidar {
         77 Lidaronoff "lidaronoff" Flag [NO_ARM NO_LOCK] "lidaronoff 0|1" "Lidar off/on.";
-        78 Lidarwarn "lidarwarn" None [] "lidarwarn" "Lidar warning zones.";
+        78 Lidarwarn "lidarwarn" None [READ] "lidarwarn" "Lidar warning zones.";
         79 UtgGet "utg_get" None [] "utg_get" "Trigger a UTG thickness read.";
         80 UtgSet "utg_set" Amount [] "utg_set speed" "Set the UTG sonic speed.";
     }
@@ -299,17 +397,22 @@ command_table! {
         86 PreflightEnable "preflight_enable" Flag [NO_ARM NO_LOCK] "preflight_enable 0|1" "Preflight checks before takeoff off/on.";
         87 ClearBags "clear_bags" OptAmount [NO_ARM NO_LOCK] "clear_bags [min_gb]" "Clear old bag files.";
         88 ClearImages "clear_images" OptAmount [NO_ARM NO_LOCK] "clear_images [min_gb]" "Clear old images.";
-        89 ListImagedir "list_imagedir" OptCount [] "list_imagedir [size]" "List image directories.";
+        89 ListImagedir "list_imagedir" OptCount [READ] "list_imagedir [size]" "List image directories.";
         90 RmImagedir "rm_imagedir" Name [NO_ARM NO_LOCK] "rm_imagedir name" "Remove an image directory.";
-        91 TestWp "test_wp" Point [] "test_wp x:y:z" "Test waypoint reachability.";
-        92 TestListwp "test_listwp" Path [] "test_listwp file_path" "Test a waypoint list from a file.";
+        91 TestWp "test_wp" Point [READ] "test_wp x:y:z" "Test waypoint reachability.";
+        92 TestListwp "test_listwp" Path [READ] "test_listwp file_path" "Test a waypoint list from a file.";
         93 TestNotif "test_notif" None [] "test_notif" "Test the notification server.";
         94 Savemsg "savemsg" None [] "savemsg" "Save messages to the log.";
         95 BmsSetpower "bms_setpower" Flag [NO_ARM NO_LOCK] "bms_setpower 0|1" "BMS power output off/on.";
         96 BmsSetcharge "bms_setcharge" Flag [NO_ARM NO_LOCK] "bms_setcharge 0|1" "BMS charging off/on.";
-        97 Help "help" None [] "help" "List the commands.";
+        97 Help "help" None [READ] "help" "List the commands.";
         98 AdminLock "admin_lock" None [ADMIN] "admin_lock" "Enable the vehicle-wide lock (admin only).";
         99 AdminUnlock "admin_unlock" None [ADMIN] "admin_unlock" "Disable the vehicle-wide lock (admin only).";
+    }
+    Control {
+        100 Control "control" None [SESSION] "control" "Who is in control of the flight.";
+        101 ControlTake "control_take" Override [SESSION] "control_take [failsafe]" "Take control of the flight (failsafe: override a failsafe).";
+        102 ControlRelease "control_release" None [SESSION] "control_release" "Release control of the flight.";
     }
 }
 

@@ -15,7 +15,8 @@ use lluav_core::{
 /// `takeoff`, and fails `ver` with a long message written by `Fields::fail`.
 #[derive(Default)]
 struct Recorder {
-    contexts: Vec<(CommandId, Context)>,
+    /// What each command was told (the pilot left out: it borrows).
+    contexts: Vec<(CommandId, Context<'static>)>,
     closed: Vec<SessionId>,
     /// Tickets `finish` still considers not ready.
     not_ready: u32,
@@ -32,7 +33,7 @@ impl Backend for Recorder {
     }
 
     fn execute(&mut self, cmd: &Command<'_>, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
-        self.contexts.push((cmd.id(), *ctx));
+        self.contexts.push((cmd.id(), Context { pilot: None, ..*ctx }));
         match cmd.id() {
             CommandId::Takeoff => Ok(Step::Pending(Ticket(7))),
             CommandId::Ver => {
@@ -54,7 +55,8 @@ impl Backend for Recorder {
 
     fn finish(&mut self, ticket: Ticket, ctx: &Context, out: &mut Fields<'_>) -> Result<Step, Failure> {
         assert_eq!(ticket, Ticket(7));
-        self.contexts.push((CommandId::Takeoff, *ctx));
+        self.contexts
+            .push((CommandId::Takeoff, Context { pilot: None, ..*ctx }));
         if self.not_ready > 0 {
             self.not_ready -= 1;
             return Ok(Step::Pending(ticket));
@@ -118,12 +120,7 @@ fn the_backend_is_told_the_request_time_role_lock_mode_and_session() {
     let _ = s.handle(&mut session, Message::Text(b"admin_lock"), &mut out);
     let _ = s.handle(&mut session, Message::Text(b"state"), &mut out);
     let seen: Vec<_> = s.backend().contexts.iter().map(|(_, c)| *c).collect();
-    let at = |role, lock_mode| Context {
-        now_ms: TS,
-        lock_mode,
-        role,
-        session: session.id(),
-    };
+    let at = |role, lock_mode| Context::new(TS, lock_mode, role, session.id());
     assert_eq!(seen, vec![at(Role::Anonymous, false), at(Role::Admin, true)]);
 }
 

@@ -265,6 +265,12 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
             ]),
         ]
         .concat(),
+        Grammar::Override => c(&[
+            ("Failsafe", Malformed),
+            ("failsafe now", Malformed),
+            ("1", Malformed),
+            (" failsafe", Malformed),
+        ]),
     }
 }
 

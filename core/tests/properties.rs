@@ -37,6 +37,7 @@ enum Owned {
     Mission(u32, bool, String),
     MwExec(u32, Vec<u32>),
     Ai1Mission(String, String),
+    Override(bool),
 }
 
 impl Owned {
@@ -83,6 +84,7 @@ impl Owned {
                 wp_ids: HVec::<u32, MAX_WAYPOINT_IDS>::from_slice(ids).unwrap(),
             },
             Owned::Ai1Mission(t, f) => Args::Ai1Mission { task_id: t, file: f },
+            Owned::Override(on) => Args::Override(*on),
         }
     }
 }
@@ -193,6 +195,7 @@ fn owned_args(g: Grammar) -> BoxedStrategy<Owned> {
         Grammar::Ai1Mission => ("[A-Za-z0-9_-]{1,64}", path())
             .prop_map(|(t, f)| Owned::Ai1Mission(t, f))
             .boxed(),
+        Grammar::Override => any::<bool>().prop_map(Owned::Override).boxed(),
     }
 }
 

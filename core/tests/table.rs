@@ -1,7 +1,10 @@
 //! The command table against the contract: the specification's commands and
-//! DESIGN.md's ids and gate lists.
+//! DESIGN.md's ids, gate lists and flight-authority classes.
 
-use lluav_core::{CommandId, Section, TABLE, table};
+use lluav_core::{Class, CommandId, Effect, Section, TABLE, table};
+
+/// DESIGN.md, "Ids": lluav's own commands, appended after the spec's 99.
+const EXTENSIONS: &[(&str, u8)] = &[("control", 100), ("control_take", 101), ("control_release", 102)];
 
 /// DESIGN.md, "Sessions and gates": runOnArm=false.
 const NOT_WHILE_ARMED: &[&str] = &[
@@ -80,8 +83,8 @@ const NOT_IN_LOCK: &[&str] = &[
 pub const SAFETY: &[&str] = &["land", "rtl", "mrtl", "tether_land", "disarm", "set_sp_ned"];
 
 #[test]
-fn table_holds_login_and_the_98_commands_of_the_reference_in_id_order() {
-    assert_eq!(TABLE.len(), 99);
+fn table_holds_login_the_98_commands_of_the_reference_and_the_extensions_in_id_order() {
+    assert_eq!(TABLE.len(), 99 + EXTENSIONS.len());
     for (i, spec) in TABLE.iter().enumerate() {
         assert_eq!(usize::from(u8::from(spec.id)), i + 1, "{}", spec.name);
         assert_eq!(CommandId::from_u8(u8::from(spec.id)), Some(spec.id));
@@ -95,7 +98,14 @@ fn table_holds_login_and_the_98_commands_of_the_reference_in_id_order() {
         assert!(!spec.summary().is_empty());
     }
     assert_eq!(CommandId::from_u8(0), None, "0 means unknown");
-    assert_eq!(CommandId::from_u8(100), None);
+    assert_eq!(CommandId::from_u8(103), None);
+    for (name, id) in EXTENSIONS {
+        assert_eq!(CommandId::from_name(name).map(u8::from), Some(*id), "{name}");
+        assert_eq!(
+            CommandId::from_name(name).map(CommandId::section),
+            Some(Section::Control)
+        );
+    }
 }
 
 #[test]
@@ -164,7 +174,7 @@ fn first_appearances() -> Vec<(&'static str, &'static str)> {
 #[test]
 fn every_command_of_the_spec_reference_is_in_the_table() {
     let names: Vec<&str> = first_appearances().into_iter().map(|(_, n)| n).collect();
-    let table: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
+    let table: Vec<&str> = TABLE.iter().map(|s| s.name).take(99).collect();
     assert_eq!(
         table, names,
         "the table lists the spec's commands in the spec's order"
@@ -189,7 +199,7 @@ fn every_command_stands_in_the_section_where_the_spec_first_lists_it() {
         other => panic!("a heading the table has no section for: {other}"),
     };
     let first = first_appearances();
-    assert_eq!(first.len(), TABLE.len());
+    assert_eq!(first.len() + EXTENSIONS.len(), TABLE.len());
     for (heading, name) in first {
         let id = CommandId::from_name(name).expect("a known name");
         assert_eq!(id.section(), section(heading), "{name}");
@@ -239,6 +249,61 @@ fn safety_commands_are_never_gated_by_arm_or_lock() {
         let spec = table::lookup(name).expect("safety command exists");
         assert!(
             spec.flags.run_on_arm && spec.flags.run_in_lock && !spec.flags.admin_only,
+            "{name}"
+        );
+    }
+}
+
+/// DESIGN.md, "Flight authority": each command's class and effect.
+#[test]
+fn classes_and_effects_match_design() {
+    let motion = ["takeoff", "set_sp_ned", "zyhk", "mw_exec"];
+    let conservative = ["land", "tether_land", "disarm"];
+    let returns = ["rtl", "mrtl"];
+    let session = ["login", "control", "control_take", "control_release"];
+    for spec in &TABLE {
+        let class = match spec.name {
+            n if motion.contains(&n) => Class::Motion,
+            n if conservative.contains(&n) => Class::Conservative,
+            n if returns.contains(&n) => Class::Return,
+            "abort_report" => Class::StopsMission,
+            _ => Class::Neutral,
+        };
+        assert_eq!(spec.class, class, "class of {}", spec.name);
+        if session.contains(&spec.name) {
+            assert_eq!(spec.effect, Effect::Session, "{}", spec.name);
+        }
+        // A command that changes nothing moves nothing either.
+        if spec.effect == Effect::Read {
+            assert_eq!(spec.class, Class::Neutral, "{}", spec.name);
+        }
+    }
+    for name in [
+        "state",
+        "param",
+        "get_param",
+        "help",
+        "mw_list",
+        "showmsg",
+        "test_wp",
+    ] {
+        assert_eq!(
+            table::lookup(name).map(|s| s.effect),
+            Some(Effect::Read),
+            "{name}"
+        );
+    }
+    for name in [
+        "takeoff",
+        "set_param",
+        "passwd",
+        "admin_lock",
+        "mission",
+        "capture",
+    ] {
+        assert_eq!(
+            table::lookup(name).map(|s| s.effect),
+            Some(Effect::Vehicle),
             "{name}"
         );
     }

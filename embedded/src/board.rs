@@ -102,6 +102,7 @@ impl<P: Peripherals> Backend for Board<P> {
                         .str("led", led.name())
                         .bool("led_enabled", enabled)
                         .u64("led_pwm", u64::from(pwm));
+                    ctx.write_authority(s);
                 });
                 Ok(Step::Done)
             }

@@ -1,11 +1,11 @@
 //! What a connection hands its complete messages to.
 
-use core::net::IpAddr;
+use core::net::SocketAddr;
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::{Mutex, MutexGuard};
 use embassy_time::{Duration, Timer};
-use lluav_core::{Backend, Clock, CloseCode, Message, Outcome, Server, Session, Ticket};
+use lluav_core::{Backend, Clock, CloseCode, Message, Outcome, Server, Session, Ticket, Via};
 
 /// How often [`SharedServer`] asks a backend again about a command it left
 /// pending.
@@ -40,7 +40,7 @@ pub trait Service {
         Self: 'a;
 
     /// The state of a connection from `peer` whose upgrade was accepted.
-    async fn open(&self, peer: Option<IpAddr>) -> Self::Session;
+    async fn open(&self, peer: Option<SocketAddr>) -> Self::Session;
 
     /// Waits for exclusive access to handle a message.
     async fn handler(&self) -> Self::Handler<'_>;
@@ -134,8 +134,12 @@ impl<M: RawMutex, B: Backend, C: Clock> Service for SharedServer<M, B, C> {
     where
         Self: 'a;
 
-    async fn open(&self, peer: Option<IpAddr>) -> Session {
-        self.server.lock().await.open(peer.map(lluav_core::Peer::from))
+    async fn open(&self, peer: Option<SocketAddr>) -> Session {
+        let mut server = self.server.lock().await;
+        match peer {
+            Some(addr) => server.open_via(Some(addr.ip().into()), Via::WebSocket(addr)),
+            None => server.open(None),
+        }
     }
 
     async fn handler(&self) -> Locked<'_, M, B, C> {
@@ -189,7 +193,7 @@ impl Service for Echo {
     const ECHOES_TEXT: bool = true;
     type Handler<'a> = Echo;
 
-    async fn open(&self, _peer: Option<IpAddr>) {}
+    async fn open(&self, _peer: Option<SocketAddr>) {}
 
     async fn handler(&self) -> Echo {
         Echo

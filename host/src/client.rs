@@ -351,6 +351,7 @@ impl Client {
             lluav_core::Grammar::OptCount => Args::OptCount(None),
             lluav_core::Grammar::OptAmount => Args::OptAmount(None),
             lluav_core::Grammar::OptName => Args::OptName(None),
+            lluav_core::Grammar::Override => Args::Override(false),
             _ => Args::None,
         };
         self.call(id, args).await

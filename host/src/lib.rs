@@ -20,7 +20,9 @@
 //!   service (readiness, watchdog and status; log lines for the journal;
 //!   `--check-config`);
 //! - [`uplink`]: the protocol through an MQTT broker (vehicles behind NAT,
-//!   fleets), and the operator's side of it.
+//!   fleets), and the operator's side of it;
+//! - [`events`]: what happened, told as it happens (the `/events` stream,
+//!   the uplink's `events` topic).
 
 #![warn(missing_docs)]
 
@@ -30,6 +32,7 @@ pub mod companion;
 pub mod config;
 pub mod console;
 pub mod daemon;
+pub mod events;
 pub mod files;
 pub mod journal;
 pub mod mavlink;

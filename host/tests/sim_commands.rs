@@ -41,6 +41,7 @@ fn sample_args(spec: &Spec) -> &'static str {
         Grammar::Mission => r#"8:{"waypoints":[{"x":1,"y":0,"z":-2}]}"#,
         Grammar::MwExec => "7:1,2",
         Grammar::Ai1Mission => "task1:missions/m.json",
+        Grammar::Override => "failsafe",
     }
 }
 

@@ -386,9 +386,15 @@ fn test_listwp_reports_each_waypoint_against_the_fence() {
             .unwrap()
             .contains("geofence_radius")
     );
-    let r = h.ok("test_wp 3:4:0");
+    let r = h.ok("test_wp 3:0:-4");
     assert_eq!(
         (r["reachable"].as_bool(), r["distance_m"].as_f64()),
         (Some(true), Some(5.0))
+    );
+    // A point on the ground is no target (min_alt).
+    let r = h.ok("test_wp 3:4:0");
+    assert_eq!(
+        (r["reachable"].as_bool(), r["reason"].as_str()),
+        (Some(false), Some("altitude 0 m below min_alt 0.5 m"))
     );
 }

@@ -38,6 +38,7 @@ VALID: dict[str, list[Any]] = {
     "Mission": [(1001, MISSION), (1002, MISSION["waypoints"]), (1003, "missions/m1.json")],
     "MwExec": [(1001, [1, 2]), (1001, (1,))],
     "Ai1Mission": [("task-1", "missions/m1.json")],
+    "Override": [(), (True,), (False,), {"failsafe": True}],
 }
 
 # Arguments the SDK refuses before sending, per grammar: wrong types,
@@ -130,6 +131,7 @@ INVALID: dict[str, list[Any]] = {
         ("task-1", "../up.json"),
         ("", "m.json"),
     ],
+    "Override": [(2,), ("failsafe",), (1.0,), (True, True)],
 }
 
 

@@ -131,12 +131,18 @@ def test_streaming_stops_when_the_client_that_set_it_leaves(flight):
     daemon.clients.remove(client)
     other.close()
     daemon.clients.remove(other)
-    time.sleep(1.0)
-    with autopilot.lock:
-        count = len(autopilot.setpoints)
-    time.sleep(1.5)
-    with autopilot.lock:
-        assert len(autopilot.setpoints) == count, "setpoints still streamed"
+
+    def quiet_for_a_while():
+        # The stream stops once lluavd has seen both sessions end: wait
+        # for a window of 1.5 s (three periods of the slowest stream)
+        # without one, however long noticing takes on a loaded machine.
+        with autopilot.lock:
+            count = len(autopilot.setpoints)
+        time.sleep(1.5)
+        with autopilot.lock:
+            return len(autopilot.setpoints) == count
+
+    wait_for("setpoints no longer streamed", quiet_for_a_while, every=0)
     fresh = daemon.client()
     assert fresh.state()["setpoint"] is None
 

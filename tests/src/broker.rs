@@ -12,9 +12,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, Publish, QoS};
+use rumqttc::{AsyncClient, Event, MqttOptions, Outgoing, Packet, Publish, QoS};
 use serde_json::Value;
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 use crate::{Lluavd, Options, WAIT, test_ca};
 
@@ -238,6 +238,11 @@ pub struct Mqtt {
     client: AsyncClient,
     messages: mpsc::UnboundedReceiver<Publish>,
     acks: mpsc::UnboundedReceiver<()>,
+    /// How many of this client's publishes the broker has taken: QoS 0
+    /// ones once written, QoS 1 once acknowledged, QoS 2 once completed.
+    settled: watch::Receiver<u64>,
+    /// How many publishes were handed to the client.
+    published: std::sync::atomic::AtomicU64,
     task: tokio::task::JoinHandle<()>,
 }
 
@@ -264,6 +269,7 @@ impl Mqtt {
         }
         let (tx, messages) = mpsc::unbounded_channel();
         let (ack_tx, acks) = mpsc::unbounded_channel();
+        let (settled_tx, settled) = watch::channel(0u64);
         let task = tokio::spawn(async move {
             loop {
                 match events.poll().await {
@@ -273,6 +279,10 @@ impl Mqtt {
                     Ok(Event::Incoming(Packet::SubAck(_))) => {
                         let _ = ack_tx.send(());
                     }
+                    Ok(
+                        Event::Outgoing(Outgoing::Publish(0))
+                        | Event::Incoming(Packet::PubAck(_) | Packet::PubComp(_)),
+                    ) => settled_tx.send_modify(|n| *n += 1),
                     Ok(_) => {}
                     Err(_) => return,
                 }
@@ -282,6 +292,8 @@ impl Mqtt {
             client,
             messages,
             acks,
+            settled,
+            published: std::sync::atomic::AtomicU64::new(0),
             task,
         })
     }
@@ -297,12 +309,22 @@ impl Mqtt {
             .expect("subscription granted in time");
     }
 
-    /// Publishes `payload` on `topic`.
+    /// Publishes `payload` on `topic` and returns once the broker has it
+    /// (acknowledged at QoS 1 and 2, written at QoS 0). rumqttc's
+    /// `publish` only queues: a test that starts a vehicle next would
+    /// otherwise race the client's event loop, which cannot run while the
+    /// test's runtime is blocked starting the daemon.
     pub async fn publish(&self, topic: &str, payload: impl Into<Vec<u8>>, qos: QoS, retain: bool) {
         self.client
             .publish(topic, qos, retain, payload)
             .await
             .expect("publish queued");
+        let mine = self.published.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        let mut settled = self.settled.clone();
+        tokio::time::timeout(WAIT, settled.wait_for(|n| *n >= mine))
+            .await
+            .expect("the broker took the message in time")
+            .expect("the connection is open");
     }
 
     /// The next message.

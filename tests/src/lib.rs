@@ -641,5 +641,6 @@ pub fn sample_args(grammar: lluav_core::Grammar) -> &'static str {
         Grammar::Mission => r#"1001:{"waypoints":[{"x":1,"y":2,"z":-3},{"x":4,"y":5,"z":-3,"yaw":1.5}]}"#,
         Grammar::MwExec => "1001:1,2",
         Grammar::Ai1Mission => "task-1:missions/a.json",
+        Grammar::Override => "failsafe",
     }
 }

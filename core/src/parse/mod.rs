@@ -68,6 +68,7 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
             Grammar::OptCount => Ok(Args::OptCount(None)),
             Grammar::OptAmount => Ok(Args::OptAmount(None)),
             Grammar::OptName => Ok(Args::OptName(None)),
+            Grammar::Override => Ok(Args::Override(false)),
             _ => Err(ArgError::Missing),
         };
     };
@@ -125,6 +126,7 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
                 wp_ids: fields::list(ids, ',', fields::uint)?,
             }
         }
+        Grammar::Override => Args::Override(rules::override_word(a)?),
         Grammar::Ai1Mission => {
             let (task_id, file) = fields::split_first(a, ':')?;
             Args::Ai1Mission {

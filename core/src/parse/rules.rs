@@ -170,6 +170,15 @@ pub(crate) fn task_id(s: &str) -> Result<&str, ArgError> {
     ident(s, b"_-")
 }
 
+/// `control_take`'s argument: exactly the word `failsafe`.
+pub(crate) fn override_word(s: &str) -> Result<bool, ArgError> {
+    if s == "failsafe" {
+        Ok(true)
+    } else {
+        Err(ArgError::Malformed)
+    }
+}
+
 /// A JSON payload: well-formed, validated without allocating.
 pub(crate) fn json(s: &str) -> Result<&str, ArgError> {
     super::json::validate(s).map(|()| s)

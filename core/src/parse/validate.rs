@@ -13,7 +13,7 @@ impl Args<'_> {
     pub(crate) fn validate(&self) -> Result<(), ArgError> {
         let finite = |v: f32| rules::finite(v).map(|_| ());
         match self {
-            Args::None | Args::Flag(_) | Args::OptCount(_) | Args::Pwm(_) => Ok(()),
+            Args::None | Args::Flag(_) | Args::OptCount(_) | Args::Pwm(_) | Args::Override(_) => Ok(()),
             Args::Amount(n) | Args::OptAmount(Some(n)) => rules::non_negative(*n).map(|_| ()),
             Args::OptAmount(None) | Args::OptName(None) => Ok(()),
             Args::Angle(v) => rules::angle(Number::from(*v)).map(|_| ()),

@@ -155,6 +155,14 @@ impl<'b> Fields<'b> {
         Failure::written(ret)
     }
 
+    /// A string member holding what `text` formats to (escaped), for text
+    /// built from parts without a buffer of its own.
+    pub fn display(&mut self, key: &str, text: fmt::Arguments<'_>) -> &mut Self {
+        self.member(key);
+        self.sink.display(text);
+        self
+    }
+
     /// The end of the failure message [`Fields::fail`] wrote, if it did.
     pub(crate) fn failure_end(&self) -> Option<usize> {
         self.sink.failed_at

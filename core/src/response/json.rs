@@ -271,6 +271,14 @@ impl<'b> Sink<'b> {
         self.failed_at = failed_at;
     }
 
+    /// A JSON string holding what `text` formats to, escaped.
+    pub(super) fn display(&mut self, text: fmt::Arguments<'_>) {
+        self.byte(b'"');
+        // `Escaping` never fails: it only sets the overflow flag.
+        let _ = fmt::write(&mut Escaping(self), text);
+        self.byte(b'"');
+    }
+
     /// Replaces everything written since `origin` with `,"msg":"<text>"`,
     /// the text escaped and cut at a character boundary where it would not
     /// fit (leaving room for the closing `}`), then refuses further writes.
@@ -302,6 +310,16 @@ pub(super) fn put_all(out: &mut [u8], bytes: &[u8]) -> usize {
         dst.copy_from_slice(bytes);
     }
     bytes.len()
+}
+
+/// Escapes text into a [`Sink`] (which notes an overflow itself).
+struct Escaping<'s, 'b>(&'s mut Sink<'b>);
+
+impl fmt::Write for Escaping<'_, '_> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        self.0.escaped(s);
+        Ok(())
+    }
 }
 
 /// Escapes text into a [`Sink`] up to `limit`, whole characters (and whole

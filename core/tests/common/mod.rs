@@ -2,8 +2,8 @@
 #![allow(dead_code)]
 
 use lluav_core::{
-    Args, Auth, Backend, Command, CommandId, Context, Failure, Fields, Grammar, Message, Outcome, Server,
-    Session, Step,
+    Args, Auth, Backend, Command, CommandId, Context, Failsafe, Failure, Fields, Grammar, Message, Outcome,
+    Server, Session, Step,
 };
 
 /// Fixed clock value for every response.
@@ -23,6 +23,12 @@ pub struct MockVehicle {
     pub saved_lock_mode: Option<bool>,
     /// Make `lock_mode_changed` fail with this.
     pub lock_save_fails: Option<Failure>,
+    /// The failsafe the vehicle reports.
+    pub failsafe: Option<Failsafe>,
+    /// Whether a mission runs.
+    pub mission_running: bool,
+    /// `control_timeout`, ms (the core's default when `None`).
+    pub control_timeout_ms: Option<u32>,
 }
 
 impl Backend for MockVehicle {
@@ -42,6 +48,7 @@ impl Backend for MockVehicle {
                     s.bool("armed", self.armed)
                         .str("fsm", "idle")
                         .bool("lock_mode", ctx.lock_mode);
+                    ctx.write_authority(s);
                 });
                 for _ in 0..self.filler {
                     out.str("x", "0123456789");
@@ -58,6 +65,26 @@ impl Backend for MockVehicle {
     fn password_changed(&mut self, new: &str) -> Result<(), Failure> {
         self.saved_password = Some(new.to_owned());
         Ok(())
+    }
+
+    fn failsafe(&self) -> Option<Failsafe> {
+        self.failsafe
+    }
+
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        if let Some(f) = self.failsafe.as_mut() {
+            f.overridden = true;
+        }
+        Ok(())
+    }
+
+    fn mission_running(&self) -> bool {
+        self.mission_running
+    }
+
+    fn control_timeout_ms(&self) -> u32 {
+        self.control_timeout_ms
+            .unwrap_or(lluav_core::DEFAULT_CONTROL_TIMEOUT_MS)
     }
 
     fn lock_mode_changed(&mut self, on: bool) -> Result<(), Failure> {
@@ -174,6 +201,7 @@ pub fn valid_args(g: Grammar) -> Vec<Option<String>> {
         ]),
         Grammar::MwExec => s(&["1001:1,2,3,5", "0:0", &format!("1:{}", vec!["9"; 64].join(","))]),
         Grammar::Ai1Mission => s(&["task-1:missions/a.json", "T_2:f"]),
+        Grammar::Override => [vec![None], s(&["failsafe"])].concat(),
     }
 }
 

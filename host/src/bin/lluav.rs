@@ -492,6 +492,19 @@ fn print_command(name: &str) {
             if spec.flags.admin_only {
                 notes.push("admin only");
             }
+            match spec.class {
+                lluav_core::table::Class::Motion => {
+                    notes.push("only from the session in control, never in a failsafe")
+                }
+                lluav_core::table::Class::StopsMission => {
+                    notes.push("while a mission runs: only from the session in control, never in a failsafe")
+                }
+                lluav_core::table::Class::Conservative => notes.push("open to every session; takes control"),
+                lluav_core::table::Class::Return => {
+                    notes.push("open to every session; takes control; refused while a failsafe lands")
+                }
+                lluav_core::table::Class::Neutral => {}
+            }
             if !notes.is_empty() {
                 println!("  ({})", notes.join("; "));
             }

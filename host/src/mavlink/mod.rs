@@ -119,7 +119,8 @@ pub use protocol::Timing;
 pub use signing::SigningKey;
 
 use crate::files::Files;
-use crate::vehicle::mission::{self as mission_json, Fence};
+use crate::vehicle::envelope::Envelope;
+use crate::vehicle::mission::{self as mission_json};
 use crate::vehicle::{Ned, Progress, Refusal, Reply, Snapshot, Vehicle};
 use answer::{Acknowledged, Answer, Captured, Rebooting, Recording, Saved};
 use autopilot::{Flavour, Mode, Phase};
@@ -436,7 +437,7 @@ impl MavlinkVehicle {
                 .read_mission_file(p, MAX_MISSION_FILE)
                 .map_err(|e| MavError::from_refusal(&e))?,
         };
-        let parsed = mission_json::parse(&text, &Fence::NONE).map_err(|e| MavError::from_refusal(&e))?;
+        let parsed = mission_json::parse(&text, &Envelope::NONE).map_err(|e| MavError::from_refusal(&e))?;
         let waypoints: Vec<Waypoint> = parsed
             .iter()
             .map(|w| Waypoint {

@@ -24,6 +24,7 @@ use lluav_core::websocket::handshake::{self as upgrade_check, Rejection, Request
 use super::handshake::{self, HeadError, Refusal};
 use super::report::{Offence, Reports};
 use super::slots::{Capacity, Full, Held, Pending, Slots};
+use super::subscriber;
 use super::{Handler, Http, LINGER, Limits, Policy};
 
 /// Everything a listener serves with.
@@ -217,8 +218,13 @@ async fn upgrade<S, H>(
     };
     let leftover = buf.split_off(len);
     let rules = shared.config.policy.at(local, shared.config.tls.is_some());
-    let key = match upgrade_check::judge(&buf, &rules) {
-        Ok(Request::Upgrade(upgrade)) => *upgrade.key,
+    let (key, events) = match upgrade_check::judge(&buf, &rules) {
+        Ok(Request::Upgrade(upgrade))
+            if subscriber::is_events(upgrade.target) && !serves_events(&*shared.handler) =>
+        {
+            return answer_and_close(stream, &handshake::not_found(), deadline).await;
+        }
+        Ok(Request::Upgrade(upgrade)) => (*upgrade.key, subscriber::is_events(upgrade.target)),
         Ok(Request::Plain { method, target }) => {
             let answer = shared
                 .config
@@ -261,7 +267,26 @@ async fn upgrade<S, H>(
     }
     // The head is not needed for the session's whole life.
     drop(buf);
-    session(stream, peer, leftover, slot, shared, stop).await;
+    if events {
+        let cx = context(shared);
+        subscriber::serve(stream, leftover, peer, slot, cx, stop).await;
+    } else {
+        session(stream, peer, leftover, slot, shared, stop).await;
+    }
+}
+
+/// Whether `handler` serves the `/events` endpoint.
+fn serves_events<H: Handler>(handler: &H) -> bool {
+    handler.subscribe().is_some()
+}
+
+fn context<H: Handler>(shared: &Shared<H>) -> Context<'_, H> {
+    Context {
+        handler: &*shared.handler,
+        buffers: &shared.buffers,
+        limits: shared.config.limits,
+        reports: &shared.reports,
+    }
 }
 
 /// The session after its `101`.
@@ -276,13 +301,7 @@ async fn session<S, H>(
     S: AsyncRead + AsyncWrite + Unpin,
     H: Handler,
 {
-    let context = Context {
-        handler: &*shared.handler,
-        buffers: &shared.buffers,
-        limits: shared.config.limits,
-        reports: &shared.reports,
-    };
-    Connection::new(stream, leftover, peer, Some(slot), context)
+    Connection::new(stream, leftover, peer, Some(slot), context(shared))
         .run(stop)
         .await;
 }

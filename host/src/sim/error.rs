@@ -8,6 +8,7 @@ use lluav_core::Ret;
 
 use crate::files;
 use crate::vehicle::Refusal;
+use crate::vehicle::envelope::Outside;
 use crate::vehicle::mission::BadMission;
 
 /// A command the simulated vehicle did not carry out.
@@ -93,6 +94,10 @@ pub enum SimError {
 }
 
 impl SimError {
+    /// A target outside the envelope: -2 with the reason.
+    pub(crate) fn outside(why: Outside) -> SimError {
+        SimError::Refused(why.to_string())
+    }
     /// An I/O failure while doing `what`.
     pub(crate) fn io(what: impl Into<String>, err: std::io::Error) -> Self {
         SimError::Files(files::Error::io(what, err))

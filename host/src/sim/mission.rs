@@ -13,6 +13,7 @@ use lluav_core::{Args, Command, CommandId, Fields};
 
 use super::error::{SimError, SimResult};
 use super::flight::RouteEvent;
+use crate::events::{Event, MissionStatus};
 use crate::vehicle::mission::Waypoint;
 
 /// Most missions kept (the oldest go first): `dump_missionlist` of that
@@ -137,6 +138,8 @@ pub(crate) struct Missions {
     plan: Option<String>,
     /// Whether the plan lock is held.
     plan_locked: bool,
+    /// Runs' progress, to be told (DESIGN.md, "Events").
+    news: Vec<Event>,
 }
 
 /// Whether `b` replaces `a`: same external id, or same AI1 task id.
@@ -263,7 +266,17 @@ impl Missions {
 
     /// Records a new run.
     pub(crate) fn start_run(&mut self, run: Run) {
+        self.tell(run.ext_id, MissionStatus::Started);
         push_bounded(&mut self.runs, run, MAX_KEPT);
+    }
+
+    fn tell(&mut self, ext_id: u32, status: MissionStatus) {
+        self.news.push(Event::Mission { ext_id, status });
+    }
+
+    /// What happened to runs since the last call, in order.
+    pub(crate) fn drain_news(&mut self, out: &mut Vec<Event>) {
+        out.append(&mut self.news);
     }
 
     /// Applies the flight model's route events to the runs.
@@ -275,17 +288,36 @@ impl Missions {
             let Some(run) = self.runs.iter_mut().rev().find(|r| r.route == route) else {
                 continue;
             };
-            match *event {
-                RouteEvent::Reached { wp, .. } => run.reached.push(wp),
+            let count = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+            let told = match *event {
+                RouteEvent::Reached { wp, .. } => {
+                    run.reached.push(wp);
+                    Some(MissionStatus::Reached {
+                        wp,
+                        index: count(run.reached.len()),
+                        count: count(run.wp_ids.len()),
+                    })
+                }
                 RouteEvent::Finished { .. } if run.status == Status::Running => {
-                    run.status = Status::Completed
+                    run.status = Status::Completed;
+                    Some(MissionStatus::Completed)
                 }
                 RouteEvent::Dropped { .. } if run.status == Status::Running => {
-                    run.status = Status::Interrupted
+                    run.status = Status::Interrupted;
+                    Some(MissionStatus::Aborted)
                 }
-                _ => {}
+                _ => None,
+            };
+            if let Some(status) = told {
+                let ext_id = run.ext_id;
+                self.tell(ext_id, status);
             }
         }
+    }
+
+    /// Whether a waypoint run is under way.
+    pub(crate) fn running(&self) -> bool {
+        self.runs.last().is_some_and(|r| r.status == Status::Running)
     }
 
     /// Marks the running run aborted and records a report.
@@ -294,6 +326,10 @@ impl Missions {
         let (ext_id, reached, total) = match run {
             Some(r) => {
                 r.status = Status::Aborted;
+                self.news.push(Event::Mission {
+                    ext_id: r.ext_id,
+                    status: MissionStatus::Aborted,
+                });
                 (Some(r.ext_id), r.reached.len(), r.wp_ids.len())
             }
             None => (None, 0, 0),
@@ -368,13 +404,15 @@ impl AbortReport {
 mod tests {
     use super::*;
     use crate::vehicle::Ned;
-    use crate::vehicle::mission::{Fence, parse};
+    use crate::vehicle::envelope::Envelope;
+    use crate::vehicle::mission::parse;
 
-    fn fence() -> Fence {
-        Fence {
+    fn fence() -> Envelope {
+        Envelope {
             home: Ned::default(),
-            radius: 100.0,
+            min_alt: 0.5,
             max_alt: 50.0,
+            radius: 100.0,
         }
     }
 

@@ -139,13 +139,15 @@ params! {
     AcceptRadius "accept_radius" Value::Float(0.3), 0.05..=10.0, "Distance at which a waypoint counts as reached, m.";
     RtlAlt "rtl_alt" Value::Float(10.0), 2.0..=120.0, "Altitude the vehicle climbs to (if lower) before returning home, m.";
     RtlLand "rtl_land" Value::Bool(true), 0.0..=1.0, "Whether RTL lands at home (otherwise it hovers there).";
-    MaxAlt "max_alt" Value::Float(120.0), 1.0..=500.0, "Highest setpoint or waypoint altitude above home, m.";
-    GeofenceRadius "geofence_radius" Value::Float(500.0), 1.0..=10000.0, "Largest horizontal distance from home of a setpoint or waypoint, m.";
+    MaxAlt "max_alt" Value::Float(120.0), 1.0..=500.0, "Highest target altitude above home (setpoints, waypoints, zyhk heights; takeoff and RTL climb at most this high), m.";
+    GeofenceRadius "geofence_radius" Value::Float(500.0), 1.0..=10000.0, "Largest horizontal distance from home of a target, m.";
     BatteryDrain "battery_drain" Value::Float(1.0), 0.0..=100.0, "Battery drain while armed, percent per minute.";
     LowBattery "low_battery" Value::Float(20.0), 0.0..=90.0, "Battery percentage below which a flying vehicle returns home.";
     ZyhkHover "zyhk_hover" Value::Float(5.0), 0.0..=600.0, "Hover time at each zyhk height, s.";
     AutosleepAfter "autosleep_after" Value::Int(300), 10.0..=86400.0, "Disarmed time before auto-sleep (when enabled), s.";
     MavlinkRate "mavlink_rate" Value::Int(50), 1.0..=400.0, "Rate of the simulated ATTITUDE stream, Hz.";
+    MinAlt "min_alt" Value::Float(0.5), 0.2..=10.0, "Lowest target altitude above home (setpoints, waypoints, zyhk heights; takeoff climbs at least this high), m.";
+    ControlTimeout "control_timeout" Value::Int(30), 1.0..=3600.0, "Seconds without a request after which the session in control loses it.";
 }
 
 /// The working and saved parameter values.
@@ -215,10 +217,29 @@ impl Params {
                 max: def.max,
             });
         }
+        self.check_envelope(def.key, value.as_f64())?;
         if let Some(slot) = self.values.get_mut(def.key as usize) {
             *slot = value;
         }
         Ok(value)
+    }
+
+    /// The one relation between parameters `set_param` enforces: `min_alt`
+    /// stays below `max_alt`, or no target could be flown (DESIGN.md,
+    /// "Flight authority"). Every other relation is settled by clipping
+    /// (`takeoff_alt` and `rtl_alt` into the envelope).
+    fn check_envelope(&self, key: Key, value: f64) -> SimResult {
+        let (min, max) = match key {
+            Key::MinAlt => (value, self.f64(Key::MaxAlt)),
+            Key::MaxAlt => (self.f64(Key::MinAlt), value),
+            _ => return Ok(()),
+        };
+        if min < max {
+            return Ok(());
+        }
+        Err(SimError::Refused(format!(
+            "min_alt {min} m not below max_alt {max} m: no altitude would be left to fly"
+        )))
     }
 
     /// Every working value back to its default (not saved until `save`).
@@ -329,6 +350,15 @@ fn read_file(file: &Path) -> io::Result<Vec<Value>> {
                 tracing::warn!(file = %file.display(), param = %name, value = %json, "ignoring saved parameter")
             }
         }
+    }
+    let (min, max) = (
+        values[Key::MinAlt as usize].as_f64(),
+        values[Key::MaxAlt as usize].as_f64(),
+    );
+    if min >= max {
+        tracing::warn!(file = %file.display(), min_alt = min, max_alt = max, "saved min_alt not below max_alt: both back to their defaults");
+        values[Key::MinAlt as usize] = DEFS[Key::MinAlt as usize].default;
+        values[Key::MaxAlt as usize] = DEFS[Key::MaxAlt as usize].default;
     }
     Ok(values)
 }

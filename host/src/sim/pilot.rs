@@ -10,7 +10,8 @@ use super::mission::{Mission, Run, Source, Status};
 use super::params::Key;
 use crate::files::Files;
 use crate::vehicle::Ned;
-use crate::vehicle::mission::{self, Fence};
+use crate::vehicle::envelope::Envelope;
+use crate::vehicle::mission;
 
 /// Largest mission or waypoint file a client may point at, bytes.
 pub(super) const MAX_MISSION_FILE: u64 = 1 << 20;
@@ -21,11 +22,13 @@ fn ned(x: f32, y: f32, z: f32) -> Ned {
 }
 
 impl Simulator {
-    pub(super) fn fence(&self) -> Fence {
-        Fence {
+    /// Where the vehicle may be sent now (DESIGN.md, "Flight authority").
+    pub(super) fn envelope(&self) -> Envelope {
+        Envelope {
             home: self.flight.home(),
-            radius: self.params.f64(Key::GeofenceRadius),
+            min_alt: self.params.f64(Key::MinAlt),
             max_alt: self.params.f64(Key::MaxAlt),
+            radius: self.params.f64(Key::GeofenceRadius),
         }
     }
 
@@ -40,13 +43,14 @@ impl Simulator {
                 out.bool("tethered", cmd.id() == C::TetherLand);
             }
             (C::Rtl | C::Mrtl, _) => {
-                self.flight.rtl(&lim, cmd.id() == C::Mrtl)?;
-                out.object("home", |o| self.flight.home().write(o));
+                let alt = self.flight.rtl(&lim, cmd.id() == C::Mrtl)?;
+                out.object("home", |o| self.flight.home().write(o))
+                    .f32("return_alt", alt as f32);
             }
             (C::SetSpNed, Args::Setpoint(p)) => {
-                self.fence()
+                self.envelope()
                     .check(ned(p.x, p.y, p.z))
-                    .map_err(SimError::Refused)?;
+                    .map_err(SimError::outside)?;
                 self.flight.track(ned(p.x, p.y, p.z), f64::from(p.yaw))?;
                 self.write_setpoint(out);
                 out.bool("tracking", true);
@@ -75,7 +79,12 @@ impl Simulator {
     fn takeoff(&mut self, files: &Files, out: &mut Fields<'_>) -> SimResult {
         self.check_takeoff()?;
         self.check_preflight(files)?;
-        let alt = self.params.f64(Key::TakeoffAlt);
+        // Home is where the vehicle stands: the envelope from there.
+        let alt = Envelope {
+            home: self.flight.pos(),
+            ..self.envelope()
+        }
+        .clip(self.params.f64(Key::TakeoffAlt));
         self.flight.takeoff(alt);
         out.f32("target_alt", alt as f32);
         Ok(())
@@ -104,10 +113,19 @@ impl Simulator {
         }
     }
 
+    /// Tells a vehicle on the ground where it is: at `z` 0, inside the
+    /// fence.
     fn relocate(&mut self, pos: Ned, yaw: f32, out: &mut Fields<'_>) -> SimResult {
         if !self.switches.map_locate {
             return Err(SimError::MapLocateOff);
         }
+        if pos.z != 0.0 {
+            return Err(SimError::Refused(format!(
+                "z {} is not on the ground: relocate_pos places a vehicle on the ground (z 0)",
+                pos.z as f32
+            )));
+        }
+        self.envelope().check_horizontal(pos).map_err(SimError::outside)?;
         self.flight.relocate(pos, f64::from(yaw));
         out.object("position", |o| pos.write(o)).f32("yaw", yaw);
         Ok(())
@@ -116,7 +134,7 @@ impl Simulator {
     /// Climbs or descends to each height in turn, holds there, then lands
     /// (at the landing point, if given).
     fn zyhk(&mut self, heights: &[f32], land: Option<&LandPoint>, out: &mut Fields<'_>) -> SimResult {
-        let (fence, here) = (self.fence(), self.flight.pos());
+        let (envelope, here) = (self.envelope(), self.flight.pos());
         let hold_s = self.params.f64(Key::ZyhkHover);
         let mut legs = Vec::with_capacity(heights.len() + 1);
         for &h in heights {
@@ -124,7 +142,7 @@ impl Simulator {
                 return Err(SimError::Refused(format!("zyhk height {h} must be above 0")));
             }
             let target = Ned::new(here.x, here.y, -f64::from(h));
-            fence.check(target).map_err(SimError::Refused)?;
+            envelope.check(target).map_err(SimError::outside)?;
             legs.push(Leg {
                 hold_s,
                 ..Leg::to(target)
@@ -132,7 +150,7 @@ impl Simulator {
         }
         if let (Some(lp), Some(&last)) = (land, heights.last()) {
             let target = ned(lp.x, lp.y, -last);
-            fence.check(target).map_err(SimError::Refused)?;
+            envelope.check(target).map_err(SimError::outside)?;
             legs.push(Leg {
                 yaw: Some(f64::from(lp.yaw)),
                 ..Leg::to(target)
@@ -190,7 +208,7 @@ impl Simulator {
         now_ms: i64,
         out: &mut Fields<'_>,
     ) -> SimResult {
-        let waypoints = mission::parse(text, &self.fence())?;
+        let waypoints = mission::parse(text, &self.envelope())?;
         out.u64("waypoints", waypoints.len() as u64);
         tracing::info!(ext_id, waypoints = waypoints.len(), "mission received");
         self.missions.submit(Mission {
@@ -204,6 +222,13 @@ impl Simulator {
 
     fn mw_exec(&mut self, ext_id: u32, wp_ids: &[u32], now_ms: i64, out: &mut Fields<'_>) -> SimResult {
         let waypoints = self.missions.select(ext_id, wp_ids)?;
+        // Limits may have changed since the upload.
+        let envelope = self.envelope();
+        for w in &waypoints {
+            envelope
+                .check(w.ned())
+                .map_err(|why| SimError::Refused(format!("waypoint {}: {why}", w.wp_id())))?;
+        }
         let legs = waypoints
             .iter()
             .map(|w| Leg {

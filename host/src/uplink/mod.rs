@@ -61,8 +61,9 @@ pub struct ClientKey(pub [u8; 16]);
 
 /// The protocol, as the uplink reaches it: the daemon's handler.
 pub trait Sessions: Send + Sync + 'static {
-    /// A session for the client whose throttle key is `client`.
-    fn open(&self, client: ClientKey) -> Session;
+    /// A session for client id `client` (`None`: the uplink's own), whose
+    /// throttle key is `key`.
+    fn open(&self, client: Option<&str>, key: ClientKey) -> Session;
 
     /// Answers `frame` in `session` as a WebSocket text message would be
     /// answered; never [`Outcome::Pending`].
@@ -75,6 +76,12 @@ pub trait Sessions: Send + Sync + 'static {
 
     /// `session` has ended.
     fn close(&self, session: Session);
+
+    /// The answer of `session`'s last request is on its way to the
+    /// broker: what it caused may be told now (the events stream).
+    fn answered(&self, session: lluav_core::SessionId) {
+        let _ = session;
+    }
 
     /// The whole `state` response, asked in `reporter`: a session the
     /// uplink keeps for its state topic, logged in here (with the

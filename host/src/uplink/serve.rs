@@ -248,7 +248,8 @@ async fn work<S: Sessions>(shared: Arc<Shared<S>>, client: Arc<str>) {
         let Some(Take { job, session }) = next else {
             return;
         };
-        let session = session.unwrap_or_else(|| shared.sessions.open(shared.key(&client)));
+        let session = session.unwrap_or_else(|| shared.sessions.open(Some(&client), shared.key(&client)));
+        let id = session.id();
         let (response, session) = run(&*shared.sessions, session, &job, &mut out).await;
         let answer = Bytes::from(envelope::response(Some(&job.id), &response));
         let ended = {
@@ -265,6 +266,7 @@ async fn work<S: Sessions>(shared: Arc<Shared<S>>, client: Arc<str>) {
             .client
             .publish_bytes(topic, QoS::AtLeastOnce, false, answer)
             .await;
+        shared.sessions.answered(id);
     }
 }
 

@@ -47,7 +47,7 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64) {
     tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut out = vec![0u8; shared.response_capacity];
     // No client id is empty: no client shares this session's throttle key.
-    let mut reporter = shared.sessions.open(shared.key(""));
+    let mut reporter = shared.sessions.open(None, shared.key(""));
     let mut last: Option<(Salient, Instant)> = None;
     loop {
         let now = tick.tick().await;

@@ -5,6 +5,7 @@
 use lluav_core::{Fields, Ret};
 use serde_json::{Map, Value};
 
+use super::envelope::Envelope;
 use super::{Ned, Refusal};
 
 /// Most waypoints one mission may hold: `mw_list` of that many, every
@@ -63,73 +64,13 @@ impl Waypoint {
     }
 }
 
-/// Where the simulator may fly: a cylinder around home.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Fence {
-    /// Home.
-    pub(crate) home: Ned,
-    /// Largest horizontal distance from home, m.
-    pub(crate) radius: f64,
-    /// Highest altitude above home, m.
-    pub(crate) max_alt: f64,
-}
-
-impl Fence {
-    /// No limits at all.
-    pub(crate) const NONE: Fence = Fence {
-        home: Ned {
-            x: 0.0,
-            y: 0.0,
-            z: 0.0,
-        },
-        radius: f64::INFINITY,
-        max_alt: f64::INFINITY,
-    };
-
-    /// Why `p` is not flyable, if it is not. Coordinates are written as the
-    /// `f32` a client sends, and a huge or tiny number with an exponent
-    /// (`1e300`), so that a reason stays short whatever was sent.
-    pub(crate) fn check(&self, p: Ned) -> Result<(), String> {
-        let dist = (p.x - self.home.x).hypot(p.y - self.home.y);
-        if dist > self.radius {
-            return Err(format!(
-                "{} m from home, beyond geofence_radius {}",
-                short(format!("{dist:.1}"), dist),
-                self.radius
-            ));
-        }
-        if p.z > 0.0 {
-            let z = p.z as f32;
-            return Err(format!(
-                "z = {} is below the ground (NED: up is negative)",
-                short(z.to_string(), z)
-            ));
-        }
-        if -p.z > self.max_alt {
-            let alt = -p.z as f32;
-            return Err(format!(
-                "altitude {} m above max_alt {}",
-                short(alt.to_string(), alt),
-                self.max_alt
-            ));
-        }
-        Ok(())
-    }
-}
-
-/// `text`, the number `v` as usually written, unless it is long; then `v`
-/// with an exponent.
-fn short(text: String, v: impl std::fmt::LowerExp) -> String {
-    if text.len() <= 16 { text } else { format!("{v:e}") }
-}
-
 /// Reads DESIGN.md's mission JSON, `{"waypoints":[...]}` or a top-level
 /// array of waypoints, each an object `{"id":..,"x":..,"y":..,"z":..,"yaw":..}`
 /// (`id` and `yaw` optional), and checks every waypoint against the
-/// fence. Waypoints without an id get their 1-based position. Reasons
+/// envelope. Waypoints without an id get their 1-based position. Reasons
 /// name waypoints by position and members by the protocol's names, and
 /// never quote the text (it may come from a file).
-pub(crate) fn parse(text: &str, fence: &Fence) -> Result<Vec<Waypoint>, BadMission> {
+pub(crate) fn parse(text: &str, envelope: &Envelope) -> Result<Vec<Waypoint>, BadMission> {
     let bad = BadMission;
     let json: Value = serde_json::from_str(text)
         .map_err(|e| bad(format!("not JSON (line {}, column {})", e.line(), e.column())))?;
@@ -156,7 +97,7 @@ pub(crate) fn parse(text: &str, fence: &Fence) -> Result<Vec<Waypoint>, BadMissi
         if !seen.insert(wp.id) {
             return Err(bad(format!("waypoint {n}: duplicate id {}", wp.id)));
         }
-        fence
+        envelope
             .check(wp.ned())
             .map_err(|why| bad(format!("waypoint {n}: {why}")))?;
         wps.push(wp);
@@ -214,9 +155,10 @@ fn waypoint(item: &Value, n: usize) -> Result<Waypoint, String> {
 mod tests {
     use super::*;
 
-    fn fence() -> Fence {
-        Fence {
+    fn fence() -> Envelope {
+        Envelope {
             home: Ned::default(),
+            min_alt: 0.5,
             radius: 100.0,
             max_alt: 50.0,
         }
@@ -304,19 +246,31 @@ mod tests {
             ),
             (
                 r#"[{"x":0,"y":0,"z":2}]"#,
-                "waypoint 1: z = 2 is below the ground (NED: up is negative)",
+                "waypoint 1: altitude -2 m below min_alt 0.5 m",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":0}]"#,
+                "waypoint 1: altitude 0 m below min_alt 0.5 m",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":-0.0}]"#,
+                "waypoint 1: altitude 0 m below min_alt 0.5 m",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":-1e-50}]"#,
+                "waypoint 1: altitude 0 m below min_alt 0.5 m",
             ),
             (
                 r#"[{"x":1e300,"y":0,"z":-2}]"#,
-                "waypoint 1: 1e300 m from home, beyond geofence_radius 100",
+                "waypoint 1: distance from home 1e300 m beyond geofence_radius 100 m",
             ),
             (
                 r#"[{"x":0,"y":0,"z":-80}]"#,
-                "waypoint 1: altitude 80 m above max_alt 50",
+                "waypoint 1: altitude 80 m above max_alt 50 m",
             ),
             (
                 r#"[{"x":0,"y":0,"z":-1e30}]"#,
-                "waypoint 1: altitude 1e30 m above max_alt 50",
+                "waypoint 1: altitude 1e30 m above max_alt 50 m",
             ),
         ] {
             assert_eq!(refused(json), why, "{json}");

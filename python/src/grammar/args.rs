@@ -53,6 +53,13 @@ impl<'a> Values<'a> {
         }
     }
 
+    fn opt_flag(&self, i: usize) -> Result<Option<bool>, Invalid> {
+        match self.get(i)? {
+            Value::Absent => Ok(None),
+            _ => self.flag(i).map(Some),
+        }
+    }
+
     fn str(&self, i: usize) -> Result<&'a str, Invalid> {
         match self.get(i)? {
             Value::Str(s) => Ok(s),
@@ -194,6 +201,7 @@ pub fn build<'a>(grammar: Grammar, params: &'a [Param], values: &'a [Value]) -> 
             task_id: v.str(0)?,
             file: v.str(1)?,
         },
+        Grammar::Override => Args::Override(v.opt_flag(0)?.unwrap_or(false)),
     })
 }
 
@@ -252,5 +260,6 @@ pub fn values<'py>(py: Python<'py>, args: &Args<'_>) -> PyResult<Vec<Bound<'py, 
             PyList::new(py, wp_ids.iter().copied())?.into_any(),
         ],
         Args::Ai1Mission { task_id, file } => vec![s(task_id), s(file)],
+        Args::Override(on) => vec![PyBool::new(py, *on).to_owned().into_any()],
     })
 }

@@ -118,6 +118,7 @@ fn grammar_params(grammar: Grammar) -> Vec<Param> {
         Grammar::Mission => vec![req("ext_id", Int), req("payload", Payload)],
         Grammar::MwExec => vec![req("ext_id", Int), req("wp_ids", Ints)],
         Grammar::Ai1Mission => vec![req("task_id", Str), req("mission_file", Str)],
+        Grammar::Override => vec![opt("failsafe", Flag)],
     }
 }
 
