@@ -68,7 +68,7 @@ pub mod websocket;
 pub use authority::{Action, Control, Failsafe, Label, Pilot, Via};
 pub use backend::{Backend, Clock, Context, DEFAULT_CONTROL_TIMEOUT_MS, Step, Ticket};
 pub use command::{Args, Command, LandPoint, MAX_HEIGHTS, MAX_WAYPOINT_IDS, Payload, Point, Pose};
-pub use error::{ArgError, Failure, ParseError, Refusal, Ret};
+pub use error::{ArgError, Bound, Failure, ParseError, Refusal, Ret};
 pub use number::Number;
 pub use parse::parse;
 pub use response::{Fields, Items, MIN_RESPONSE_CAPACITY};

@@ -14,11 +14,11 @@
 use crate::authority::{Control, Label, Via};
 use crate::backend::{Backend, Clock, Context, Step, Ticket};
 use crate::command::{Args, Command};
-use crate::error::{Failure, ParseError, Refusal, Ret, messages};
+use crate::error::{ArgError, Failure, ParseError, Refusal, Ret, messages};
 use crate::gate;
 use crate::parse::{self, Split};
 use crate::response::{self, Fields};
-use crate::session::{Auth, LoginOutcome, Peer, Pending, Session, SessionId};
+use crate::session::{Auth, AuthError, LoginOutcome, Peer, Pending, Session, SessionId};
 use crate::table::{CommandId, TABLE, lookup};
 use crate::throttle::{DefaultSlots, Slots};
 
@@ -464,7 +464,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         close: &mut Option<CloseCode>,
     ) -> Result<(), Failure> {
         match self.auth.login(session, attempt, now) {
-            LoginOutcome::Throttled => return Err(Failure::failed(messages::THROTTLED)),
+            LoginOutcome::Throttled { retry_after_s } => return Err(Failure::throttled(retry_after_s)),
             LoginOutcome::Wrong { close: shut } => {
                 if shut {
                     *close = Some(CloseCode::Policy);
@@ -479,10 +479,18 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
     }
 
     fn passwd(&mut self, session: &mut Session, new: &str) -> Result<(), Failure> {
-        let bad = |_| Failure::usage(CommandId::Passwd);
+        let bad = |e| {
+            let why = match e {
+                AuthError::BadPassword => ArgError::BadPassword,
+                AuthError::Ambiguous => ArgError::SpecialPassword,
+            };
+            Failure::invalid(CommandId::Passwd, why)
+        };
         self.auth.check_password(new).map_err(bad)?;
         self.backend.password_changed(new)?;
-        self.auth.set_password(new).map_err(bad)?;
+        // Checked just above, against the same login values: it cannot
+        // fail now.
+        let _ = self.auth.set_password(new);
         self.auth.admit(session);
         Ok(())
     }
@@ -519,7 +527,13 @@ fn write<'o>(
             .or_else(|| response::write_error(out, Ret::Failed, cmd, ts, &[messages::TOO_LARGE])),
         Answer::Error(ret, cmd, parts) => response::write_error(out, ret, cmd, ts, &parts),
         Answer::Failed(cmd, f, end) => match (f.is_written(), end) {
-            (false, _) => response::write_error(out, f.ret(), cmd, ts, &[f.msg()]),
+            (false, _) => {
+                let len = response::write_error(out, f.ret(), cmd, ts, &[f.msg()]);
+                match f.retry_after_s() {
+                    Some(secs) => len.and_then(|end| response::retry_after(out, end, secs)),
+                    None => len,
+                }
+            }
             (true, Some(end)) => response::finish(out, f.ret(), cmd, ts, end),
             // Written into some other buffer: a backend bug, not the
             // client's; say so rather than send a message that isn't there.

@@ -34,8 +34,11 @@ pub enum Grammar {
     OptName,
     /// A relative path made of single path components joined by `/`.
     Path,
-    /// Free text: the rest of the frame.
+    /// Free text: the rest of the frame, no control or format characters
+    /// (Unicode Cc, Cf), at most 4096 bytes.
     Text,
+    /// A task name: text as [`Grammar::Text`], at most 256 bytes.
+    TaskName,
     /// A login password: the rest of the frame.
     Secret,
     /// A new login password: 1–32 printable ASCII characters, no space.
@@ -255,7 +258,7 @@ macro_rules! command_table {
         pub static TABLE: [Spec; [$( $($id,)* )*].len()] = [
             $( $( Spec {
                 id: CommandId::$variant,
-                name: $name,
+                name: name_in($usage, $name),
                 section: Section::$section,
                 grammar: Grammar::$grammar,
                 flags: marks!($($flag)*).flags,
@@ -333,7 +336,7 @@ command_table! {
         38 DumpMissionresult "dump_missionresult" OptCount [READ] "dump_missionresult [ext_id]" "Dump a mission result.";
         39 DumpMissionlist "dump_missionlist" None [READ] "dump_missionlist" "Dump the short mission request list.";
         40 AbortReport "abort_report" OptCount [STOPS_MISSION] "abort_report [abort_id]" "Abort or finish a mission report.";
-        41 SetTaskname "set_taskname" Text [] "set_taskname name" "Set the current task name.";
+        41 SetTaskname "set_taskname" TaskName [] "set_taskname name" "Set the current task name.";
     }
     Map {
         42 Savemap "savemap" Name [NO_ARM NO_LOCK] "savemap name" "Save the current map.";
@@ -414,6 +417,21 @@ command_table! {
         101 ControlTake "control_take" Override [SESSION] "control_take [failsafe]" "Take control of the flight (failsafe: override a failsafe).";
         102 ControlRelease "control_release" None [SESSION] "control_release" "Release control of the flight.";
     }
+}
+
+/// `name`, as the start of `usage` (which begins with the name and a space,
+/// or is the name alone): the same text, stored once. A firmware's flash
+/// holds every usage line; the names would be about a kilobyte more.
+const fn name_in(usage: &'static str, name: &'static str) -> &'static str {
+    let (head, rest) = match usage.split_at_checked(name.len()) {
+        Some(parts) => parts,
+        None => ("", ""),
+    };
+    assert!(
+        same(head.as_bytes(), name.as_bytes()) && matches!(rest.as_bytes().first(), None | Some(b' ')),
+        "a usage line starts with its command's name"
+    );
+    head
 }
 
 // The table is indexed by `id - 1`; a row out of order would break `spec()`.

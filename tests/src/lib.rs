@@ -630,6 +630,7 @@ pub fn sample_args(grammar: lluav_core::Grammar) -> &'static str {
         Grammar::Name => "sample",
         Grammar::Path => "sample/dir",
         Grammar::Text => "sample text",
+        Grammar::TaskName => "sample task",
         Grammar::Secret => "1025",
         Grammar::NewPassword => "n3wpass",
         Grammar::ParamName => "takeoff_alt",

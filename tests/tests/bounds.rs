@@ -98,6 +98,7 @@ fn largest_args(name: &str, grammar: Grammar, paths: &Paths) -> String {
         (_, Grammar::Name | Grammar::OptName) => format!("q{}", quotes(127)),
         (_, Grammar::Path) => paths.map.clone(),
         (_, Grammar::Text) => quotes(4096),
+        (_, Grammar::TaskName) => quotes(256),
         (_, Grammar::Secret) => "1025".into(),
         (_, Grammar::NewPassword) => "P".repeat(32),
         (_, Grammar::ParamName) => "geofence_radius".into(),
@@ -159,7 +160,7 @@ async fn with_every_stored_value_at_its_maximum_no_command_answers_response_too_
         ok(&mut c, "unlock_plan").await;
     }
     for (frame, why) in [
-        (format!("plan {}", quotes(4097)), "plan longer than 4096 bytes"),
+        (format!("plan {}", quotes(4097)), "text longer than 4096 bytes"),
         (
             format!("set_taskname {}", quotes(257)),
             "task name longer than 256 bytes",
@@ -257,5 +258,60 @@ async fn with_every_stored_value_at_its_maximum_no_command_answers_response_too_
         r["missions"].as_array().map(Vec::len),
         Some(16),
         "every kept mission"
+    );
+}
+
+#[tokio::test]
+async fn lists_say_truncated_whenever_entries_were_left_out_a_count_included_and_their_total() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password("s3cret"));
+    let mut c = Conn::login(&daemon.url, "s3cret").await;
+    // Each answered set_param logs a line: more than showmsg's 50.
+    for i in 0..60 {
+        ok(&mut c, &format!("set_param cruise_speed:{}", 1 + i % 5)).await;
+    }
+    let r = ok(&mut c, "showmsg").await;
+    let total = r["total"].as_u64().expect("total");
+    assert!(total >= 60, "{r}");
+    assert_eq!(
+        (r["msgs"].as_array().map(Vec::len), &r["truncated"]),
+        (Some(50), &Value::Bool(true)),
+        "50 of {total}"
+    );
+    let r = ok(&mut c, "showmsg 0").await;
+    assert_eq!(
+        (r["msgs"].as_array().map(Vec::len), &r["truncated"]),
+        (Some(0), &Value::Bool(true)),
+        "{r}"
+    );
+    assert!(r["total"].as_u64().is_some_and(|t| t >= total), "{r}");
+    let r = ok(&mut c, "showmsg 4294967295").await;
+    assert_eq!(r["truncated"], false, "every line fits: {r}");
+    assert_eq!(r["msgs"].as_array().map(|a| a.len() as u64), r["total"].as_u64());
+
+    for name in ["day1", "day2"] {
+        std::fs::create_dir(dir.path().join("images").join(name)).expect("image dir");
+    }
+    for (frame, shown, truncated) in [
+        ("list_imagedir 0", 0, true),
+        ("list_imagedir 1", 1, true),
+        ("list_imagedir 2", 2, false),
+        ("list_imagedir", 2, false),
+    ] {
+        let r = ok(&mut c, frame).await;
+        assert_eq!(
+            (
+                r["imagedirs"].as_array().map(Vec::len),
+                &r["truncated"],
+                &r["total"]
+            ),
+            (Some(shown), &Value::Bool(truncated), &Value::from(2)),
+            "{frame}: {r}"
+        );
+    }
+    let r = ok(&mut c, "list_maps").await;
+    assert_eq!(
+        (&r["truncated"], &r["total"]),
+        (&Value::Bool(false), &Value::from(0))
     );
 }

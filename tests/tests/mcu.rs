@@ -178,6 +178,10 @@ async fn five_wrong_passwords_close_the_session_with_1008_and_lock_the_address_o
         (Some(-1), "Too many wrong passwords, retry later"),
         "{r}"
     );
+    assert!(
+        r["retry_after_s"].as_u64().is_some_and(|s| s > 0),
+        "says when: {r}"
+    );
 }
 
 #[tokio::test]

@@ -438,6 +438,14 @@ impl MavlinkVehicle {
                 .map_err(|e| MavError::from_refusal(&e))?,
         };
         let parsed = mission_json::parse(&text, &Envelope::NONE).map_err(|e| MavError::from_refusal(&e))?;
+        // The autopilot flies a run's items from what it holds: uploading
+        // that mission again would change them under the vehicle.
+        let running = self
+            .link
+            .with(|k| k.missions().running().filter(|_| k.fsm(ctx.now_ms) == "mission"));
+        if running == Some(ext_id) {
+            return Err(MavError::State(format!("Mission {ext_id} is running")));
+        }
         let waypoints: Vec<Waypoint> = parsed
             .iter()
             .map(|w| Waypoint {

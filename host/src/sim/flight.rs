@@ -10,7 +10,9 @@
 //! Only [`Flight::takeoff`] leaves the ground: every other command that
 //! moves the vehicle ([`Flight::land`], [`Flight::track`],
 //! [`Flight::fly_route`], [`Flight::rtl`]) refuses a vehicle that is not in
-//! the air with [`SimError::NotFlying`] and changes nothing.
+//! the air with [`SimError::NotFlying`] and changes nothing. A vehicle
+//! disarmed in the air falls ([`Mode::Falling`]: gravity, no thrust) until
+//! it hits the ground; nothing flies it meanwhile.
 
 use std::collections::VecDeque;
 use std::f64::consts::PI;
@@ -29,6 +31,8 @@ const DISARM_DELAY_S: f64 = 1.0;
 const LAND_BUDGET_S: f64 = 12.0;
 /// Battery charge rate on the pad while `bms_setcharge 1`, percent per minute.
 const CHARGE_RATE: f64 = 5.0;
+/// Gravity, m/s² (a vehicle disarmed in the air falls freely).
+const GRAVITY: f64 = 9.81;
 
 /// The FSM states, each with the data only it has.
 #[derive(Clone, Debug, PartialEq)]
@@ -49,6 +53,8 @@ pub(crate) enum Mode {
     Rtl(Route),
     /// Asleep: low power, no takeoff until `wakeup`.
     Sleep,
+    /// Disarmed in the air: falling, motors off, until it hits the ground.
+    Falling,
 }
 
 impl Mode {
@@ -65,17 +71,25 @@ impl Mode {
             Mode::Landing { .. } => "landing",
             Mode::Rtl(_) => "rtl",
             Mode::Sleep => "sleep",
+            Mode::Falling => "falling",
         }
     }
 
     /// Whether the motors are armed.
     pub(crate) fn armed(&self) -> bool {
-        !matches!(self, Mode::Disarmed { .. } | Mode::Sleep)
+        !matches!(self, Mode::Disarmed { .. } | Mode::Sleep | Mode::Falling)
     }
 
-    /// Whether the vehicle is off the ground (or on its way up or down).
+    /// Whether the vehicle is off the ground (or on its way up or down,
+    /// falling included).
     pub(crate) fn airborne(&self) -> bool {
         !matches!(self, Mode::Disarmed { .. } | Mode::Armed { .. } | Mode::Sleep)
+    }
+
+    /// Whether it flies: in the air with its motors armed, so that the
+    /// commands that move a vehicle can move it.
+    pub(crate) fn flying(&self) -> bool {
+        self.armed() && self.airborne()
     }
 
     fn route(&self) -> Option<&Route> {
@@ -374,10 +388,10 @@ impl Flight {
     }
 
     fn require_airborne(&self) -> SimResult {
-        if self.mode.airborne() {
-            Ok(())
-        } else {
-            Err(SimError::NotFlying)
+        match self.mode {
+            _ if self.mode.flying() => Ok(()),
+            Mode::Falling => Err(SimError::Falling),
+            _ => Err(SimError::NotFlying),
         }
     }
 
@@ -412,20 +426,22 @@ impl Flight {
         Ok(())
     }
 
-    /// Disarms at once; a vehicle in the air drops to the ground.
+    /// Disarms at once; a vehicle in the air falls from where it is, with
+    /// the velocity it had, until it hits the ground.
     pub(crate) fn disarm(&mut self) {
         if self.mode.airborne() {
-            tracing::warn!(
-                altitude = format!("{:.2}", self.pos.up()),
-                "forced disarm in flight: vehicle dropped"
-            );
-        }
-        if self.mode != Mode::Sleep {
+            if self.mode != Mode::Falling {
+                tracing::warn!(
+                    altitude = format!("{:.2}", self.pos.up()),
+                    "forced disarm in flight: the vehicle falls"
+                );
+            }
+            self.enter(Mode::Falling);
+        } else if !matches!(self.mode, Mode::Sleep | Mode::Disarmed { .. }) {
             self.enter(Mode::LANDED);
+            self.vel = Ned::default();
         }
-        self.pos.z = 0.0;
-        self.vel = Ned::default();
-        self.sp = self.pos;
+        self.sp = Ned::new(self.pos.x, self.pos.y, 0.0);
     }
 
     /// Goes to sleep (only from the ground, disarmed); whether it did.
@@ -437,11 +453,13 @@ impl Flight {
         disarmed
     }
 
-    /// Wakes up from sleep; otherwise nothing changes.
-    pub(crate) fn wakeup(&mut self) {
-        if self.mode == Mode::Sleep {
+    /// Wakes up from sleep; otherwise nothing changes. Whether it slept.
+    pub(crate) fn wakeup(&mut self) -> bool {
+        let asleep = self.mode == Mode::Sleep;
+        if asleep {
             self.switch(Mode::LANDED);
         }
+        asleep
     }
 
     /// Tracks a new setpoint (offboard): hover towards it, ending any route
@@ -532,13 +550,15 @@ impl Flight {
             Mode::Hover => self.move_towards(dt, lim, lim.climb),
             Mode::Mission(_) | Mode::Rtl(_) => self.follow_route(dt, lim),
             &mut Mode::Landing { rate, spot } => self.descend(dt, lim, rate, spot),
+            Mode::Falling => self.fall(dt),
         }
         if self.mode.armed() {
             self.totals.armed_s += dt;
             self.battery = (self.battery - lim.drain * dt / 60.0).max(0.0);
             self.check_battery(lim);
-        } else {
-            // Disarmed on the ground: whatever failsafe there was is over.
+        } else if !self.mode.airborne() {
+            // Disarmed on the ground: whatever failsafe there was is over
+            // (a vehicle disarmed in the air is still falling).
             self.end_failsafe();
         }
         let band = band(self.battery, lim.low_battery);
@@ -580,6 +600,27 @@ impl Flight {
             self.pos.z = 0.0;
             self.vel = Ned::default();
             self.switch(Mode::Armed { on_ground_s: 0.0 });
+        }
+    }
+
+    /// Free fall: gravity alone, until the ground stops it.
+    fn fall(&mut self, dt: f64) {
+        self.vel.z += GRAVITY * dt;
+        self.pos = Ned::new(
+            self.pos.x + self.vel.x * dt,
+            self.pos.y + self.vel.y * dt,
+            self.pos.z + self.vel.z * dt,
+        );
+        self.sp = Ned::new(self.pos.x, self.pos.y, 0.0);
+        if self.pos.z >= 0.0 {
+            tracing::warn!(
+                speed = format!("{:.1}", self.vel.norm()),
+                "the falling vehicle hit the ground"
+            );
+            self.pos.z = 0.0;
+            self.vel = Ned::default();
+            self.sp = self.pos;
+            self.switch(Mode::LANDED);
         }
     }
 

@@ -250,7 +250,7 @@ impl Vehicle for Simulator {
     }
 
     fn mission_running(&self) -> bool {
-        matches!(self.flight.mode(), flight::Mode::Mission(_)) && self.missions.running()
+        matches!(self.flight.mode(), flight::Mode::Mission(_)) && self.missions.running().is_some()
     }
 
     fn control_timeout_ms(&self) -> u32 {

@@ -11,7 +11,7 @@
 use std::io;
 use std::path::{Path, PathBuf};
 
-use lluav_core::number::format_f32;
+use lluav_core::number::{format_f32, parse_f32};
 use lluav_core::{Args, Command, CommandId, Fields, Number};
 
 use super::error::{SimError, SimResult};
@@ -67,6 +67,22 @@ impl Value {
                 "0" | "false" => Some((Value::Bool(false), None)),
                 _ => None,
             },
+        }
+    }
+
+    /// Whether `text`, which [`Value::parse_like`] refused, is a number
+    /// of this type's grammar that is too large for it (`1e39` for a
+    /// float, `99999999999999999999` for an integer): out of range, not
+    /// of the wrong type.
+    fn too_large(self, text: &str) -> bool {
+        let integer = |t: &str| {
+            let digits = t.strip_prefix('-').unwrap_or(t);
+            !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit())
+        };
+        match self {
+            Value::Int(_) => integer(text),
+            Value::Float(_) => parse_f32(text).is_some_and(f32::is_infinite),
+            Value::Bool(_) => false,
         }
     }
 
@@ -204,18 +220,30 @@ impl Params {
     /// unknown name, a value of the wrong type or out of range).
     fn set(&mut self, name: &str, text: &str) -> SimResult<Value> {
         let (def, _) = self.get(name)?;
-        let (value, sent) = def.default.parse_like(text).ok_or_else(|| SimError::ParamType {
+        let out_of_range = |value: String| SimError::ParamRange {
             name: name.into(),
-            expected: def.default.type_name(),
-            value: text.into(),
-        })?;
-        if let Some(n) = sent.filter(|n| !sent_in_range(def, n)) {
-            return Err(SimError::ParamRange {
+            value,
+            min: def.min,
+            max: def.max,
+        };
+        let Some((value, sent)) = def.default.parse_like(text) else {
+            if def.default.too_large(text) {
+                // Echoed as sent when short; a long one is only "too large".
+                let shown = if text.len() <= 24 {
+                    text
+                } else {
+                    "(a number too large)"
+                };
+                return Err(out_of_range(shown.into()));
+            }
+            return Err(SimError::ParamType {
                 name: name.into(),
-                value: n.to_string(),
-                min: def.min,
-                max: def.max,
+                expected: def.default.type_name(),
+                value: text.into(),
             });
+        };
+        if let Some(n) = sent.filter(|n| !sent_in_range(def, n)) {
+            return Err(out_of_range(n.to_string()));
         }
         self.check_envelope(def.key, value.as_f64())?;
         if let Some(slot) = self.values.get_mut(def.key as usize) {
@@ -273,7 +301,11 @@ impl Params {
             (CommandId::SetParam, Args::SetParam { name, value }) => {
                 let v = self.set(name, value)?;
                 tracing::info!(param = name, value, "parameter set");
-                out.object("param", |o| v.write(o, name)).bool("unsaved", true);
+                // As get_param and save_param 0 say: setting the saved value
+                // back leaves nothing unsaved.
+                let (def, _) = self.get(name)?;
+                out.object("param", |o| v.write(o, name))
+                    .bool("unsaved", self.unsaved(def));
             }
             (CommandId::ResetParam, _) => {
                 self.reset();
@@ -394,6 +426,21 @@ mod tests {
         );
         assert!(matches!(
             p.set("takeoff_alt", "NaN"),
+            Err(SimError::ParamType { .. })
+        ));
+        // Too large for its type is out of range, not of the wrong type.
+        assert_eq!(
+            p.set("takeoff_alt", "1e39").unwrap_err().to_string(),
+            "Invalid arguments: takeoff_alt 1e39 out of range 0.5..120"
+        );
+        assert_eq!(
+            p.set("autosleep_after", "99999999999999999999")
+                .unwrap_err()
+                .to_string(),
+            "Invalid arguments: autosleep_after 99999999999999999999 out of range 10..86400"
+        );
+        assert!(matches!(
+            p.set("autosleep_after", "1e3"),
             Err(SimError::ParamType { .. })
         ));
         assert_eq!(

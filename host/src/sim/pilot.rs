@@ -1,7 +1,7 @@
 //! The Flight Control and Mission Management commands: what the flight
 //! model, the parameters and the mission bookkeeping do together.
 
-use lluav_core::{Args, Command, CommandId as C, Fields, LandPoint, Payload};
+use lluav_core::{Args, Command, CommandId as C, Fields, LandPoint, Number, Payload};
 
 use super::Simulator;
 use super::error::{SimError, SimResult};
@@ -60,9 +60,18 @@ impl Simulator {
                 out.bool("armed", false);
             }
             (C::Sleep, _) => {
+                // The armed gate let it through: it is on the ground (or
+                // asleep already), unless it falls.
+                if *self.flight.mode() == Mode::Falling {
+                    return Err(SimError::Falling);
+                }
                 self.flight.sleep();
             }
-            (C::Wakeup, _) => self.flight.wakeup(),
+            (C::Wakeup, _) => {
+                // Scripts send `wakeup; takeoff`: an awake vehicle is fine,
+                // and the answer says which it was.
+                out.bool("was_asleep", self.flight.wakeup());
+            }
             (C::Zyhk, Args::Zyhk { heights, land }) => self.zyhk(heights, land.as_ref(), out)?,
             (C::RelocatePos, Args::Pose(p)) => self.relocate(ned(p.x, p.y, p.z), p.yaw, out)?,
             (id, _) => return Err(SimError::NotOwned(id.name())),
@@ -92,8 +101,13 @@ impl Simulator {
 
     /// Why the vehicle may not take off now, if it may not.
     fn check_takeoff(&self) -> SimResult {
-        if *self.flight.mode() == Mode::Sleep {
-            return Err(SimError::Asleep);
+        match self.flight.mode() {
+            Mode::Sleep => return Err(SimError::Asleep),
+            Mode::Falling => return Err(SimError::Falling),
+            _ => {}
+        }
+        if !self.devices.powered() {
+            return Err(SimError::PowerOff);
         }
         let low = self.params.f64(Key::LowBattery);
         if self.flight.battery() <= low {
@@ -119,6 +133,9 @@ impl Simulator {
         if !self.switches.map_locate {
             return Err(SimError::MapLocateOff);
         }
+        if *self.flight.mode() == Mode::Falling {
+            return Err(SimError::Falling);
+        }
         if pos.z != 0.0 {
             return Err(SimError::Refused(format!(
                 "z {} is not on the ground: relocate_pos places a vehicle on the ground (z 0)",
@@ -139,6 +156,8 @@ impl Simulator {
         let mut legs = Vec::with_capacity(heights.len() + 1);
         for &h in heights {
             if h <= 0.0 {
+                // As DESIGN.md writes numbers: `-0` is 0.
+                let h = Number::from(h);
                 return Err(SimError::Refused(format!("zyhk height {h} must be above 0")));
             }
             let target = Ned::new(here.x, here.y, -f64::from(h));
@@ -192,10 +211,7 @@ impl Simulator {
                 self.submit(0, Source::Ai1((*task_id).to_owned()), &text, now_ms, out)
             }
             Args::MwExec { ext_id, wp_ids } => self.mw_exec(*ext_id, wp_ids, now_ms, out),
-            &Args::OptCount(abort_id) if cmd.id() == C::AbortReport => {
-                self.abort(abort_id, now_ms, out);
-                Ok(())
-            }
+            &Args::OptCount(abort_id) if cmd.id() == C::AbortReport => self.abort(abort_id, now_ms, out),
             _ => self.missions.run(cmd, out),
         }
     }
@@ -210,14 +226,13 @@ impl Simulator {
     ) -> SimResult {
         let waypoints = mission::parse(text, &self.envelope())?;
         out.u64("waypoints", waypoints.len() as u64);
-        tracing::info!(ext_id, waypoints = waypoints.len(), "mission received");
+        tracing::info!(source = ?source, ext_id, waypoints = waypoints.len(), "mission received");
         self.missions.submit(Mission {
             ext_id,
             source,
             waypoints,
             received_ms: now_ms,
-        });
-        Ok(())
+        })
     }
 
     fn mw_exec(&mut self, ext_id: u32, wp_ids: &[u32], now_ms: i64, out: &mut Fields<'_>) -> SimResult {
@@ -260,8 +275,8 @@ impl Simulator {
 
     /// Ends the running waypoint run, if any (the vehicle holds where it
     /// is), and records the report.
-    fn abort(&mut self, abort_id: Option<u32>, now_ms: i64, out: &mut Fields<'_>) {
-        let report = self.missions.abort(abort_id, now_ms);
+    fn abort(&mut self, abort_id: Option<u32>, now_ms: i64, out: &mut Fields<'_>) -> SimResult {
+        let report = self.missions.abort(abort_id, now_ms)?;
         if report.ext_id.is_some() && matches!(self.flight.mode(), Mode::Mission(_)) {
             // In the air by the check above, so holding cannot be refused.
             let _ = self.flight.track(self.flight.pos(), self.flight.yaw());
@@ -272,5 +287,6 @@ impl Simulator {
             "abort report"
         );
         out.object("abort_report", |o| report.write(o));
+        Ok(())
     }
 }

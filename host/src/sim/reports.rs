@@ -147,7 +147,7 @@ impl Simulator {
             sp.write(o);
             o.f32("yaw", yaw as f32);
         })
-        .bool("active", self.flight.mode().airborne());
+        .bool("active", self.flight.mode().flying());
     }
 
     pub(super) fn preflight_checks(&self, files: &Files) -> Vec<Check> {
