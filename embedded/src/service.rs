@@ -27,6 +27,13 @@ pub const PENDING_POLL: Duration = Duration::from_millis(5);
 pub trait Service {
     /// Per-connection state.
     type Session;
+    /// Whether every valid text message is answered with itself (the
+    /// echo). With feature `streamed-echo` the connection then sends it
+    /// straight from the message buffer, in as many pieces as the transmit
+    /// buffer takes, without asking the handler: a transmit buffer far
+    /// smaller than the message limit carries every echo (Autobahn's 4 MiB
+    /// messages on a board).
+    const ECHOES_TEXT: bool = false;
     /// Exclusive access for handling one message (e.g. a mutex guard).
     type Handler<'a>: Handler<Session = Self::Session>
     where
@@ -183,6 +190,7 @@ impl Handler for Echo {
 
 impl Service for Echo {
     type Session = ();
+    const ECHOES_TEXT: bool = true;
     type Handler<'a> = Echo;
 
     async fn open(&self, _peer: Option<SocketAddr>) {}

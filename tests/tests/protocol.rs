@@ -2,8 +2,8 @@
 //! flight of the simulated vehicle, and every command of the table; each
 //! over `ws://` and over `wss://`.
 
-use lluav_core::{CommandId, Grammar, TABLE};
-use lluav_tests::{Conn, Lluavd, Options, Scheme, wait_for_state};
+use lluav_core::{CommandId, TABLE};
+use lluav_tests::{Conn, Lluavd, Options, Scheme, sample_args, wait_for_state};
 use serde_json::Value;
 
 const PASSWORD: &str = "s3cret";
@@ -128,36 +128,6 @@ async fn a_whole_flight_takes_off_follows_setpoints_and_lands(scheme: Scheme) {
     let r = c.request("reboot_node").await;
     assert_ne!(msg(&r), "Not allow when vehicle is ARMED!", "disarmed again: {r}");
     c.close().await;
-}
-
-/// A valid argument string for each grammar, so that every command reaches
-/// the backend.
-fn sample_args(grammar: Grammar) -> &'static str {
-    match grammar {
-        Grammar::None | Grammar::OptName => "",
-        Grammar::Flag => "1",
-        Grammar::OptCount => "5",
-        Grammar::Pwm => "1500",
-        Grammar::Amount => "12.5",
-        Grammar::OptAmount => "0",
-        Grammar::Angle => "-30",
-        Grammar::Name => "sample",
-        Grammar::Path => "sample/dir",
-        Grammar::Text => "sample text",
-        Grammar::TaskName => "sample task",
-        Grammar::Secret => "1025",
-        Grammar::NewPassword => "n3wpass",
-        Grammar::ParamName => "takeoff_alt",
-        Grammar::SetParam => "takeoff_alt:3.5",
-        Grammar::Setpoint => "1.0:2.0:-3.0:0.5",
-        Grammar::Point => "10.0:5.0:-2.0",
-        Grammar::Pose => "1.0,2.0,-3.0,0.5",
-        Grammar::Zyhk => "1.5,2.0,2.5",
-        Grammar::Mission => r#"1001:{"waypoints":[{"x":1,"y":2,"z":-3},{"x":4,"y":5,"z":-3,"yaw":1.5}]}"#,
-        Grammar::MwExec => "1001:1,2",
-        Grammar::Ai1Mission => "task-1:missions/a.json",
-        Grammar::Override => "failsafe",
-    }
 }
 
 async fn every_command_of_the_table_gets_exactly_one_valid_response(scheme: Scheme) {
