@@ -140,7 +140,7 @@ pub async fn serve_stream<S, H>(
     let deadline = Instant::now() + config.limits.handshake_timeout;
     let shared = Shared::new(handler, config);
     let (pending, _) = shared.slots.begin(peer.ip());
-    upgrade(stream, peer, local, pending, deadline, &shared, stop).await;
+    upgrade(stream, None, peer, local, pending, deadline, &shared, stop).await;
 }
 
 /// A TCP connection: TLS first for `wss://`, then the upgrade.
@@ -158,8 +158,9 @@ async fn accept<H: Handler>(
     let Ok(local) = tcp.local_addr() else {
         return;
     };
+    let fd = Some(std::os::fd::AsRawFd::as_raw_fd(&tcp));
     let Some(acceptor) = shared.config.tls.clone() else {
-        upgrade(tcp, peer, local.ip(), pending, deadline, &shared, stop).await;
+        upgrade(tcp, fd, peer, local.ip(), pending, deadline, &shared, stop).await;
         return;
     };
     // Boxed: a TLS stream is kilobytes, and inline it would make every
@@ -173,6 +174,7 @@ async fn accept<H: Handler>(
         Ok(Ok(stream)) => {
             Box::pin(upgrade(
                 stream,
+                fd,
                 peer,
                 local.ip(),
                 pending,
@@ -188,9 +190,12 @@ async fn accept<H: Handler>(
 }
 
 /// Reads and judges the request head, answers it, and serves the session
-/// if it is an acceptable upgrade with a slot free.
+/// if it is an acceptable upgrade with a slot free. `fd` is the TCP
+/// socket under `stream`, when there is one.
+#[allow(clippy::too_many_arguments)]
 async fn upgrade<S, H>(
     mut stream: S,
+    fd: Option<std::os::fd::RawFd>,
     peer: SocketAddr,
     local: IpAddr,
     pending: Pending,
@@ -268,6 +273,9 @@ async fn upgrade<S, H>(
     // The head is not needed for the session's whole life.
     drop(buf);
     if events {
+        if let Some(fd) = fd {
+            subscriber::small_send_buffer(fd);
+        }
         let cx = context(shared);
         subscriber::serve(stream, leftover, peer, slot, cx, stop).await;
     } else {

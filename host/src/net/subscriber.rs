@@ -33,6 +33,24 @@ pub const PING_EVERY: Duration = Duration::from_secs(10);
 /// How long the close handshake waits for the peer's close frame.
 const CLOSE_WAIT: Duration = Duration::from_secs(3);
 
+/// The kernel's send buffer of a subscriber's socket, bytes: a couple of
+/// hundred events. Linux would grow it to megabytes — tens of thousands of
+/// stale events held for a subscriber that stopped reading — where the
+/// queue of [`crate::events::QUEUE`] events and a `gap` are the promise.
+const SEND_BUFFER: usize = 32 * 1024;
+
+/// Keeps a subscriber's kernel buffer small (see [`SEND_BUFFER`]); a
+/// socket that refuses keeps its own. `fd` must be the open socket of the
+/// connection being served (the listener passes its TCP stream's).
+pub fn small_send_buffer(fd: std::os::fd::RawFd) {
+    // SAFETY: `fd` is the descriptor of the TCP stream the caller's
+    // connection owns, open for the whole call; it is only borrowed here.
+    let fd = unsafe { std::os::fd::BorrowedFd::borrow_raw(fd) };
+    if let Err(e) = nix::sys::socket::setsockopt(&fd, nix::sys::socket::sockopt::SndBuf, &SEND_BUFFER) {
+        debug!(error = %e, "subscriber's send buffer left as it was");
+    }
+}
+
 /// Whether the request target names the events endpoint (`/events`, with
 /// or without a query).
 pub fn is_events(target: &str) -> bool {
