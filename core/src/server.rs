@@ -435,15 +435,9 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         }
         match self.backend.failsafe() {
             Some(f) if f.holds() && !word => {
-                return Err(out.fail(
-                    Ret::Failed,
-                    format_args!(
-                        "{}{}{}",
-                        messages::FAILSAFE_OPEN,
-                        f.reason(),
-                        messages::FAILSAFE_TAKE
-                    ),
-                ));
+                let [source, sep, detail] = f.reason_parts();
+                let parts = [messages::FAILSAFE_OPEN, source, sep, detail, messages::FAILSAFE_TAKE];
+                return Err(out.fail_parts(Ret::Failed, &parts));
             }
             Some(f) if f.holds() => self.backend.override_failsafe()?,
             _ => {}

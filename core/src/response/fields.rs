@@ -161,6 +161,20 @@ impl<'b> Fields<'b> {
         Failure::written(ret)
     }
 
+    /// As [`Fields::fail`], the message in parts (no `core::fmt`, which a
+    /// firmware would otherwise link for it).
+    pub fn fail_parts(&mut self, ret: Ret, parts: &[&str]) -> Failure {
+        self.sink.failure_parts(parts);
+        Failure::written(ret)
+    }
+
+    /// A string member made of `parts`, escaped.
+    pub fn str_parts(&mut self, key: &str, parts: &[&str]) -> &mut Self {
+        self.member(key);
+        self.sink.string(parts);
+        self
+    }
+
     /// A string member holding what `text` formats to (escaped), for text
     /// built from parts without a buffer of its own.
     pub fn display(&mut self, key: &str, text: fmt::Arguments<'_>) -> &mut Self {
