@@ -4,9 +4,11 @@
 //! message across its frames, and the answer to a peer's close.
 
 use lluav_core::websocket::{
-    Fragments, Header, Interrupt, Opcode, Utf8, Verdict, close_reply, parse_header, unmask, write_header,
+    Fragments, Header, Interrupt, Opcode, Utf8, Utf8Stream, Verdict, close_reply, parse_header, unmask,
+    write_header,
 };
 use lluav_core::{CloseCode, Message};
+use proptest::prelude::*;
 
 #[test]
 fn a_header_cut_short_waits_for_more_bytes() {
@@ -183,6 +185,106 @@ fn a_code_point_above_the_unicode_range_fails_at_its_second_byte() {
 fn surrogates_and_overlong_forms_fail() {
     assert_eq!(feed(&[b"\xed\xa0\x80"]).0, Verdict::Invalid);
     assert_eq!(feed(&[b"\xc0\xaf"]).0, Verdict::Invalid);
+}
+
+/// Whether some continuation can still make `prefix` valid UTF-8: the
+/// verdict a checker that saw `prefix` must give.
+fn possible(prefix: &[u8]) -> bool {
+    match std::str::from_utf8(prefix) {
+        Ok(_) => true,
+        Err(e) => e.error_len().is_none(),
+    }
+}
+
+/// Pushes `message` cut at `cuts` (ascending offsets) into a
+/// [`Utf8Stream`], checking after each piece that its verdict is the one
+/// the bytes so far call for; stops at the first `Invalid`. Whether the
+/// message ended on a character boundary, if it was pushed whole.
+fn stream(message: &[u8], cuts: &[usize]) -> Option<bool> {
+    let mut utf8 = Utf8Stream::new();
+    let mut at = 0;
+    for &end in cuts.iter().chain([&message.len()]) {
+        let verdict = utf8.push(&message[at..end]);
+        let expected = if possible(&message[..end]) {
+            Verdict::Open
+        } else {
+            Verdict::Invalid
+        };
+        assert_eq!(
+            verdict, expected,
+            "{message:x?} cut at {cuts:?}, after {end} bytes"
+        );
+        if verdict == Verdict::Invalid {
+            return None;
+        }
+        at = end;
+    }
+    Some(utf8.complete())
+}
+
+/// Characters of one to four bytes, and the invalid forms Autobahn's
+/// section 6 sends (a code point above U+10FFFF, a surrogate, overlong
+/// forms, a lone continuation byte, a character cut by the end): cut into
+/// two and three pieces at every offset, each piece is judged as the whole
+/// message so far would be, and only a valid message ends complete.
+#[test]
+fn a_stream_cut_anywhere_is_judged_as_the_whole_message() {
+    let messages: [&[u8]; 9] = [
+        "a\u{e9}\u{263A}\u{1F6F8}z".as_bytes(),
+        "\u{3ba}\u{1f79}\u{3c3}\u{3bc}\u{3b5}".as_bytes(),
+        b"\xce\xba\xf4\x90\x80\x80edited",
+        b"ab\xed\xa0\x80cd",
+        b"\xc0\xaf and \xe0\x80\xaf",
+        b"text \x80 lone",
+        b"ends inside \xe2\x98",
+        b"\xf0\x9f\x9b",
+        b"",
+    ];
+    for message in messages {
+        let whole = std::str::from_utf8(message).is_ok();
+        for a in 0..=message.len() {
+            if let Some(complete) = stream(message, &[a]) {
+                assert_eq!(complete, whole, "{message:x?} cut at {a}");
+            }
+            for b in a..=message.len() {
+                if let Some(complete) = stream(message, &[a, b]) {
+                    assert_eq!(complete, whole, "{message:x?} cut at {a} and {b}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn a_stream_of_one_byte_pieces_carries_every_character_across() {
+    let text = "\u{1F6F8} over \u{263A}, \u{e9}t\u{e9}".as_bytes();
+    let cuts: Vec<usize> = (1..text.len()).collect();
+    assert_eq!(stream(text, &cuts), Some(true));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 2048, ..ProptestConfig::default() })]
+
+    /// Valid text with stray bytes mixed in, cut anywhere: the stream's
+    /// verdict after every piece is the whole prefix's.
+    #[test]
+    fn a_stream_agrees_with_the_whole_message(
+        parts in proptest::collection::vec(
+            prop_oneof![
+                any::<char>().prop_map(|c| c.to_string().into_bytes()),
+                any::<u8>().prop_map(|b| vec![b]),
+            ],
+            0..40,
+        ),
+        mut cuts in proptest::collection::vec(any::<proptest::sample::Index>(), 0..8),
+    ) {
+        let message = parts.concat();
+        let mut cuts: Vec<usize> = cuts.drain(..).map(|i| i.index(message.len() + 1)).collect();
+        cuts.sort_unstable();
+        if let Some(complete) = stream(&message, &cuts) {
+            prop_assert_eq!(complete, std::str::from_utf8(&message).is_ok());
+        }
+    }
 }
 
 /// The header of a masked client frame with a `len`-byte payload.

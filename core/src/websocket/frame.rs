@@ -7,7 +7,8 @@
 //! the slice it is given. [`write_header`] frames a server payload with
 //! the minimal length form. [`Utf8`] checks a text message while its
 //! pieces arrive, so invalid text fails the connection at its first bad
-//! byte (section 8.1, "fail fast"), not when the last fragment is in.
+//! byte (section 8.1, "fail fast"), not when the last fragment is in;
+//! [`Utf8Stream`] does the same for a message whose bytes are not kept.
 
 use crate::server::CloseCode;
 
@@ -238,5 +239,83 @@ impl Utf8 {
     /// ends on a character boundary (a message may not end inside one).
     pub fn complete(&self, len: usize) -> bool {
         self.valid == len
+    }
+}
+
+/// A text message checked piece by piece when its bytes are not kept (an
+/// echo that sends each piece on before the next arrives): [`Utf8`] needs
+/// the whole message so far, this only the up to three bytes of a
+/// character that a piece's end cut, carried to the next piece. Each byte
+/// is examined about once (a carried character's bytes twice).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Utf8Stream {
+    /// The start of a character the last piece ended inside.
+    carry: [u8; 4],
+    carried: usize,
+}
+
+impl Utf8Stream {
+    /// A new, empty message.
+    pub const fn new() -> Self {
+        Utf8Stream {
+            carry: [0; 4],
+            carried: 0,
+        }
+    }
+
+    /// Checks the next `piece` of the message.
+    pub fn push(&mut self, piece: &[u8]) -> Verdict {
+        let mut rest = piece;
+        if self.carried > 0 {
+            // The carried character with the bytes that may finish it: a
+            // character has at most four, so four decide it.
+            let take = (self.carry.len() - self.carried).min(rest.len());
+            let (Some(room), Some(next)) = (
+                self.carry.get_mut(self.carried..self.carried + take),
+                rest.get(..take),
+            ) else {
+                return Verdict::Invalid;
+            };
+            room.copy_from_slice(next);
+            let joined = self.carry.get(..self.carried + take).unwrap_or(&[]);
+            let finished = match core::str::from_utf8(joined) {
+                Ok(_) => joined.len(),
+                // The carried character is complete (and valid_up_to
+                // counts past it); what follows is checked with the rest.
+                Err(e) if e.valid_up_to() > 0 => e.valid_up_to(),
+                // Still unfinished: four bytes would have finished it, so
+                // the whole piece was taken.
+                Err(e) if e.error_len().is_none() && take == rest.len() => {
+                    self.carried += take;
+                    return Verdict::Open;
+                }
+                Err(_) => return Verdict::Invalid,
+            };
+            rest = rest.get(finished.saturating_sub(self.carried)..).unwrap_or(&[]);
+            self.carried = 0;
+        }
+        match core::str::from_utf8(rest) {
+            Ok(_) => Verdict::Open,
+            // `error_len` is `None` when the piece ends inside a character
+            // that the next piece may finish.
+            Err(e) if e.error_len().is_none() => {
+                let tail = rest.get(e.valid_up_to()..).unwrap_or(&[]);
+                match self.carry.get_mut(..tail.len()) {
+                    Some(room) => {
+                        room.copy_from_slice(tail);
+                        self.carried = tail.len();
+                        Verdict::Open
+                    }
+                    None => Verdict::Invalid,
+                }
+            }
+            Err(_) => Verdict::Invalid,
+        }
+    }
+
+    /// Whether the message, all of it pushed, ends on a character boundary
+    /// (a message may not end inside one).
+    pub fn complete(&self) -> bool {
+        self.carried == 0
     }
 }

@@ -7,9 +7,10 @@
 //! - [`policy`]: who may open a session, the `Origin` and `Host` rules of
 //!   DESIGN.md's "Security defaults", given the address a connection
 //!   arrived on;
-//! - frames ([`parse_header`], [`unmask`], [`write_header`], [`Utf8`]):
-//!   client headers checked before any payload is read, server headers
-//!   written in the minimal length form, text checked as it arrives;
+//! - frames ([`parse_header`], [`unmask`], [`write_header`], [`Utf8`],
+//!   [`Utf8Stream`]): client headers checked before any payload is read,
+//!   server headers written in the minimal length form, text checked as
+//!   it arrives (kept whole or not);
 //! - messages ([`Fragments`], [`close_reply`]): the rules of a message
 //!   across its frames, and the answer to a peer's close.
 //!
@@ -23,7 +24,7 @@ mod message;
 pub mod policy;
 
 pub use frame::{
-    Header, MAX_CLIENT_HEADER, MAX_CONTROL_PAYLOAD, MAX_SERVER_HEADER, Opcode, Utf8, Verdict, header_len,
-    parse_header, unmask, write_header,
+    Header, MAX_CLIENT_HEADER, MAX_CONTROL_PAYLOAD, MAX_SERVER_HEADER, Opcode, Utf8, Utf8Stream, Verdict,
+    header_len, parse_header, unmask, write_header,
 };
 pub use message::{Fragments, Interrupt, close_reply};
