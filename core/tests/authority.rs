@@ -325,7 +325,10 @@ fn labels_say_who_without_secrets() {
     let v4: SocketAddr = ([192, 0, 2, 7], 51234).into();
     let label = |s: &mut TestServer, via| s.open_via(None, via).label().as_str().to_owned();
     assert_eq!(label(&mut s, Via::WebSocket(v4)), "ws 192.0.2.7:51234 #1");
-    assert_eq!(label(&mut s, Via::WebSocket(v6)), "ws [2001:db8:0:0:0:0:0:1]:40000 #2");
+    assert_eq!(
+        label(&mut s, Via::WebSocket(v6)),
+        "ws [2001:db8:0:0:0:0:0:1]:40000 #2"
+    );
     assert_eq!(label(&mut s, Via::Uplink("alice")), "mqtt alice");
     assert_eq!(label(&mut s, Via::Local), "local #4");
     let widest: SocketAddr = "[ffff:ffff:ffff:ffff:ffff:ffff:ffff:ffff]:65535".parse().unwrap();
