@@ -55,7 +55,7 @@ use crate::error::{Error, Rejection};
 use crate::log::debug;
 use crate::receive::{Event, Reader};
 #[cfg(feature = "streamed-echo")]
-use crate::send::write_text;
+use crate::send::write_piece;
 use crate::send::{Outgoing, Sender, Sent, write_reply};
 use crate::service::{Handler, Service};
 use crate::transport::{self, Transport};
@@ -158,6 +158,8 @@ impl<'b> Connection<'b> {
         session: &mut S::Session,
         mut admitted: impl FnMut(bool),
     ) -> Result<u16, Error<T::Error>> {
+        #[cfg(feature = "streamed-echo")]
+        self.reader.stream_text(S::ECHOES_TEXT);
         loop {
             let event = match self.next_event(io).await {
                 Err(Error::LoginTimeout) => {
@@ -191,6 +193,22 @@ impl<'b> Connection<'b> {
                     }
                     admitted(now);
                     closed
+                }
+                #[cfg(feature = "streamed-echo")]
+                Event::Piece { fin } => {
+                    let (opcode, piece) = self.reader.piece();
+                    with_deadline(login, write_piece(io, opcode, fin, piece))
+                        .await
+                        .map_err(|_| Error::LoginTimeout)??;
+                    self.reader.piece_sent(fin);
+                    // The service is not asked about a text it echoes
+                    // (`Service::ECHOES_TEXT`), nor so whether the session
+                    // is admitted: an echo admits every session.
+                    if fin {
+                        self.login = None;
+                        admitted(true);
+                    }
+                    None
                 }
             };
             if let Some(code) = closed {
@@ -243,16 +261,6 @@ impl<'b> Connection<'b> {
     ) -> Result<(Option<u16>, bool), Error<T::Error>> {
         let reply = self.limits.reply;
         let message = self.reader.message(event);
-        // Behind a feature: an await point in this function costs every
-        // firmware the code of its state, taken or not (700 bytes).
-        #[cfg(feature = "streamed-echo")]
-        if S::ECHOES_TEXT
-            && matches!(event, Event::Message)
-            && let Ok(text) = message.text()
-        {
-            write_text(io, text.as_bytes()).await?;
-            return Ok((None, true));
-        }
         let mut waiting = None;
         let (sent, now) = loop {
             if !transport::reserve(io, header_len(reply) + reply).await? {

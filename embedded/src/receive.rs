@@ -9,7 +9,18 @@
 //! the end of the ring buffer) is kept in a 14-byte carry, a control
 //! frame's payload in 125 bytes of its own, so nothing waits for bytes it
 //! has not consumed.
+//!
+//! With feature `streamed-echo`, for a service that echoes text
+//! ([`Reader::stream_text`]), a text message is not gathered: the message
+//! buffer holds one piece of it at a time, unmasked and checked for UTF-8
+//! ([`Utf8Stream`](lluav_core::websocket::Utf8Stream)), which the
+//! connection sends on ([`Event::Piece`]) before the reader goes on. A
+//! text message of any length then passes through a message buffer of
+//! any size (at least [`crate::MIN_MESSAGE`]); binary messages are still
+//! gathered, up to the buffer's size, for the service to answer.
 
+#[cfg(feature = "streamed-echo")]
+use lluav_core::websocket::Utf8Stream;
 use lluav_core::websocket::handshake::Rejection;
 use lluav_core::websocket::{
     self, Fragments, Header, Interrupt, MAX_CLIENT_HEADER, MAX_CONTROL_PAYLOAD, Opcode, Verdict,
@@ -36,6 +47,29 @@ pub(crate) enum Event {
     Control(Opcode),
     /// The peer broke the protocol; fail the connection with this code.
     Fail(CloseCode),
+    /// The next piece of a streamed text message is in the message buffer
+    /// ([`Reader::piece`]): send it on, as the last frame of the echo if
+    /// `fin`, then [`Reader::piece_sent`].
+    #[cfg(feature = "streamed-echo")]
+    Piece {
+        /// Whether it ends the message.
+        fin: bool,
+    },
+}
+
+/// A text message passing through the message buffer piece by piece.
+#[cfg(feature = "streamed-echo")]
+#[derive(Clone, Copy, Debug, Default)]
+struct Stream {
+    /// Whether text messages are streamed at all.
+    enabled: bool,
+    /// Whether the message in progress is a streamed text message.
+    active: bool,
+    /// Whether a piece of it was sent (the next one is a continuation).
+    started: bool,
+    /// Bytes of the next piece in the message buffer.
+    piece: usize,
+    utf8: Utf8Stream,
 }
 
 /// A frame being received.
@@ -58,6 +92,8 @@ pub(crate) struct Reader<'b> {
     frame: Option<Current>,
     control: [u8; MAX_CONTROL_PAYLOAD],
     control_len: usize,
+    #[cfg(feature = "streamed-echo")]
+    stream: Stream,
 }
 
 /// How far a header got.
@@ -79,6 +115,41 @@ impl<'b> Reader<'b> {
             frame: None,
             control: [0; MAX_CONTROL_PAYLOAD],
             control_len: 0,
+            #[cfg(feature = "streamed-echo")]
+            stream: Stream::default(),
+        }
+    }
+
+    /// Streams text messages through the message buffer instead of
+    /// gathering them (for a service that answers valid text with itself).
+    #[cfg(feature = "streamed-echo")]
+    pub(crate) fn stream_text(&mut self, enabled: bool) {
+        self.stream.enabled = enabled;
+    }
+
+    /// The piece of the last [`Event::Piece`]: the opcode of its frame
+    /// (text for the message's first, continuation after) and its bytes.
+    #[cfg(feature = "streamed-echo")]
+    pub(crate) fn piece(&self) -> (Opcode, &[u8]) {
+        let opcode = match self.stream.started {
+            true => Opcode::Continuation,
+            false => Opcode::Text,
+        };
+        (opcode, self.message.get(..self.stream.piece).unwrap_or(&[]))
+    }
+
+    /// The piece of the last [`Event::Piece`] was sent; after the message's
+    /// last one, the next data frame starts a new message.
+    #[cfg(feature = "streamed-echo")]
+    pub(crate) fn piece_sent(&mut self, fin: bool) {
+        self.stream.piece = 0;
+        self.stream.started = true;
+        if fin {
+            self.stream = Stream {
+                enabled: self.stream.enabled,
+                ..Stream::default()
+            };
+            self.fragments.reset();
         }
     }
 
@@ -205,7 +276,27 @@ impl<'b> Reader<'b> {
 
     /// Checks a new frame against the message in progress.
     fn begin(&mut self, header: &Header) -> Option<Event> {
-        match self.fragments.begin(header, self.message.len()) {
+        let limit = self.message.len();
+        // A streamed message is never held whole: no limit of the message
+        // buffer's. (Each of its frames stays within usize::MAX bytes, 4 GiB
+        // on a 32-bit MCU: `Fragments` counts in usize; a longer frame is
+        // oversized, 1009.)
+        #[cfg(feature = "streamed-echo")]
+        let limit = match header.opcode {
+            Opcode::Text if self.stream.enabled => usize::MAX,
+            Opcode::Continuation if self.stream.active => usize::MAX,
+            _ => limit,
+        };
+        match self.fragments.begin(header, limit) {
+            #[cfg(feature = "streamed-echo")]
+            Ok(()) if header.opcode == Opcode::Text && self.stream.enabled => {
+                self.stream = Stream {
+                    enabled: true,
+                    active: true,
+                    ..Stream::default()
+                };
+                None
+            }
             Ok(()) => None,
             Err(Interrupt::Fail(code)) => Some(Event::Fail(code)),
             Err(Interrupt::Oversized) => Some(Event::Oversized),
@@ -216,6 +307,10 @@ impl<'b> Reader<'b> {
     /// bytes used and an event once the frame (or the text) calls for one.
     fn payload(&mut self, mut current: Current, bytes: &[u8]) -> (usize, Option<Event>) {
         let header = current.header;
+        #[cfg(feature = "streamed-echo")]
+        if self.stream.active && !header.opcode.is_control() {
+            return self.stream_payload(current, bytes);
+        }
         let left = header.len - current.got;
         let take = usize::try_from(left).map_or(bytes.len(), |left| left.min(bytes.len()));
         let offset = current.got as usize;
@@ -253,5 +348,44 @@ impl<'b> Reader<'b> {
             header.fin.then_some(Event::Message)
         };
         (take, event)
+    }
+
+    /// Takes what `bytes` holds of a streamed text frame into the piece
+    /// in the message buffer; returns the bytes used and an event once the
+    /// piece is to be sent (the buffer is full, or the message ended).
+    /// Between frames of the message (and around control frames) the piece
+    /// simply waits in the buffer: fewer, larger frames go out.
+    #[cfg(feature = "streamed-echo")]
+    fn stream_payload(&mut self, mut current: Current, bytes: &[u8]) -> (usize, Option<Event>) {
+        let header = current.header;
+        let at = self.stream.piece;
+        let room = self.message.len().saturating_sub(at);
+        let left = header.len - current.got;
+        let take = usize::try_from(left).map_or(bytes.len(), |left| left.min(bytes.len()));
+        let take = take.min(room);
+        let (Some(dst), Some(src)) = (self.message.get_mut(at..at + take), bytes.get(..take)) else {
+            return (0, Some(Event::Fail(CloseCode::InternalError)));
+        };
+        dst.copy_from_slice(src);
+        websocket::unmask(dst, header.mask, current.got as usize);
+        // Fail fast (RFC 6455 8.1): the rest of the message is never read,
+        // and the bytes of the piece before the bad one are never sent.
+        if self.stream.utf8.push(dst) == Verdict::Invalid {
+            return (take, Some(Event::Fail(CloseCode::InvalidPayload)));
+        }
+        current.got += take as u64;
+        self.stream.piece += take;
+        let ended = current.got == header.len;
+        self.frame = (!ended).then_some(current);
+        let last = ended && header.fin;
+        if last && !self.stream.utf8.complete() {
+            // It ends inside a character: the echo's last frame is never sent.
+            return (take, Some(Event::Fail(CloseCode::InvalidPayload)));
+        }
+        if last || self.stream.piece == self.message.len() {
+            return (take, Some(Event::Piece { fin: last }));
+        }
+        // A frame that has not ended took every offered byte: read more.
+        (take, (!ended).then_some(Event::More))
     }
 }

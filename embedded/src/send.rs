@@ -233,26 +233,37 @@ pub(crate) fn write_reply(
     }
 }
 
+/// Sends `payload` as one frame of a streamed text message (`opcode`
+/// text for its first, continuation after; the last one `fin`), copied
+/// into the transmit buffer in as many pieces as its free space takes: the
+/// payload already lies elsewhere (the message buffer), so the transmit
+/// buffer need not hold it whole.
 #[cfg(feature = "streamed-echo")]
-/// Sends `payload` as one text frame, copied into the transmit buffer in
-/// as many pieces as its free space takes: for an answer that already
-/// lies elsewhere (an echo, in the message buffer), which the transmit
-/// buffer then need not hold whole.
-pub(crate) async fn write_text<T: Transport>(io: &mut T, payload: &[u8]) -> Result<(), Error<T::Error>> {
+pub(crate) async fn write_piece<T: Transport>(
+    io: &mut T,
+    opcode: Opcode,
+    fin: bool,
+    payload: &[u8],
+) -> Result<(), Error<T::Error>> {
     let head = header_len(payload.len());
     if !transport::reserve(io, head).await? {
         return Err(Error::Buffers);
     }
     let mut framed = false;
-    transport::write(io, &mut |room| match room
-        .get_mut(..head)
-        .and_then(|out| write_header(out, Opcode::Text, payload.len()))
-    {
-        Some(n) => {
-            framed = true;
-            n
+    transport::write(io, &mut |room| {
+        let Some(out) = room.get_mut(..head) else {
+            return 0;
+        };
+        let Some(n) = write_header(out, opcode, payload.len()) else {
+            return 0;
+        };
+        // `write_header` frames a final frame; every piece of a message
+        // but its last is not.
+        if let (false, Some(first)) = (fin, out.first_mut()) {
+            *first &= 0x7f;
         }
-        None => 0,
+        framed = true;
+        n
     })
     .await?;
     if !framed {

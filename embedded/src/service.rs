@@ -28,11 +28,13 @@ pub trait Service {
     /// Per-connection state.
     type Session;
     /// Whether every valid text message is answered with itself (the
-    /// echo). With feature `streamed-echo` the connection then sends it
-    /// straight from the message buffer, in as many pieces as the transmit
-    /// buffer takes, without asking the handler: a transmit buffer far
-    /// smaller than the message limit carries every echo (Autobahn's 4 MiB
-    /// messages on a board).
+    /// echo). With feature `streamed-echo` the connection then streams
+    /// text without asking the handler: each piece of a text message that
+    /// fits the message buffer is unmasked and checked for UTF-8 there and
+    /// sent on at once as a frame of a fragmented echo, so that text
+    /// messages of any length (Autobahn's 16 MiB on a board) pass through
+    /// buffers of a fixed size; invalid UTF-8 closes with 1007 at its
+    /// first bad byte. Binary messages are still gathered and handed over.
     const ECHOES_TEXT: bool = false;
     /// Exclusive access for handling one message (e.g. a mutex guard).
     type Handler<'a>: Handler<Session = Self::Session>
