@@ -384,7 +384,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             (CommandId::Help, _) => {
                 out.array("commands", |a| {
                     for spec in &TABLE {
-                        a.str(spec.name);
+                        a.str(spec.name());
                     }
                 });
             }
@@ -436,7 +436,13 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         match self.backend.failsafe() {
             Some(f) if f.holds() && !word => {
                 let [source, sep, detail] = f.reason_parts();
-                let parts = [messages::FAILSAFE_OPEN, source, sep, detail, messages::FAILSAFE_TAKE];
+                let parts = [
+                    messages::FAILSAFE_OPEN,
+                    source,
+                    sep,
+                    detail,
+                    messages::FAILSAFE_TAKE,
+                ];
                 return Err(out.fail_parts(Ret::Failed, &parts));
             }
             Some(f) if f.holds() => self.backend.override_failsafe()?,

@@ -285,12 +285,12 @@ impl Authority {
 /// while a failsafe lands the vehicle.
 fn check_authority(spec: &lluav_core::Spec, msg: &str, holds: Option<Failsafe>) {
     if spec.class.conservative() {
-        assert!(!msg.starts_with(messages::FLOWN_BY), "{}: {msg}", spec.name);
+        assert!(!msg.starts_with(messages::FLOWN_BY), "{}: {msg}", spec.name());
         let landing_return = spec.class == Class::Return && holds.is_some_and(|f| f.landing());
         assert!(
             landing_return || !msg.starts_with(messages::FAILSAFE_OPEN),
             "{}: {msg}",
-            spec.name
+            spec.name()
         );
     }
 }

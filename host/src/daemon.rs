@@ -149,7 +149,8 @@ impl<V: Vehicle> Handler for Protocol<V> {
     type Session = Session;
 
     fn session(&self, peer: SocketAddr) -> Session {
-        self.locked(|server| server.open_via(Some(peer.ip().into()), Via::WebSocket(peer)))
+        let addr = peer.to_string();
+        self.locked(|server| server.open_via(Some(peer.ip().into()), Via::WebSocket(&addr)))
     }
 
     async fn handle<'o>(

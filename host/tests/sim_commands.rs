@@ -68,9 +68,9 @@ fn prepared(airborne: bool) -> Harness {
 fn frame(spec: &Spec) -> String {
     let args = sample_args(spec);
     if args.is_empty() {
-        spec.name.to_owned()
+        spec.name().to_owned()
     } else {
-        format!("{} {args}", spec.name)
+        format!("{} {args}", spec.name())
     }
 }
 
