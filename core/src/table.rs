@@ -99,24 +99,38 @@ pub enum Section {
     Control,
 }
 
-/// Gate flags of one command (DESIGN.md, "Sessions and gates").
+/// Gate flags of one command (DESIGN.md, "Sessions and gates"), as bits
+/// of one byte: with the row's other one-byte fields the table's rows are
+/// 16 bytes, not 20 (408 bytes of a firmware's flash).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct Flags {
-    /// `runOnArm`: the command may run while the vehicle is armed.
-    pub run_on_arm: bool,
-    /// `runInLock`: a non-admin session may run it in lock mode.
-    pub run_in_lock: bool,
-    /// Only an admin session may run it.
-    pub admin_only: bool,
-}
+pub struct Flags(u8);
 
 impl Flags {
+    const NOT_ON_ARM: u8 = 1;
+    const NOT_IN_LOCK: u8 = 2;
+    const ADMIN_ONLY: u8 = 4;
+
     /// The default: runs armed, runs in lock mode, open to every session.
-    const OPEN: Flags = Flags {
-        run_on_arm: true,
-        run_in_lock: true,
-        admin_only: false,
-    };
+    const OPEN: Flags = Flags(0);
+
+    /// `runOnArm`: the command may run while the vehicle is armed.
+    pub const fn run_on_arm(self) -> bool {
+        self.0 & Self::NOT_ON_ARM == 0
+    }
+
+    /// `runInLock`: a non-admin session may run it in lock mode.
+    pub const fn run_in_lock(self) -> bool {
+        self.0 & Self::NOT_IN_LOCK == 0
+    }
+
+    /// Only an admin session may run it.
+    pub const fn admin_only(self) -> bool {
+        self.0 & Self::ADMIN_ONLY != 0
+    }
+
+    const fn with(self, bit: u8) -> Flags {
+        Flags(self.0 | bit)
+    }
 }
 
 /// What a command does to the flight, for the failsafe and control gates
@@ -241,9 +255,9 @@ impl Spec {
 // class (`RETURN`: conservative and climbs; else neutral); `READ`, `SESSION` = its effect (else vehicle).
 macro_rules! marks {
     () => { Marks::NONE };
-    (NO_ARM $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { run_on_arm: false, ..m.flags }) } };
-    (NO_LOCK $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { run_in_lock: false, ..m.flags }) } };
-    (ADMIN $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { admin_only: true, ..m.flags }) } };
+    (NO_ARM $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(m.flags.with(Flags::NOT_ON_ARM)) } };
+    (NO_LOCK $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(m.flags.with(Flags::NOT_IN_LOCK)) } };
+    (ADMIN $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(m.flags.with(Flags::ADMIN_ONLY)) } };
     (MOTION $($rest:ident)*) => { marks!($($rest)*).class(Class::Motion) };
     (STOPS_MISSION $($rest:ident)*) => { marks!($($rest)*).class(Class::StopsMission) };
     (CONSERVATIVE $($rest:ident)*) => { marks!($($rest)*).class(Class::Conservative) };

@@ -17,13 +17,13 @@ fn expected(spec: &Spec, who: Who, armed: bool, locked: bool) -> Result<(), &'st
     if who == Who::LoggedOut && spec.id != CommandId::Login {
         return Err("Login first!");
     }
-    if spec.flags.admin_only && who != Who::Admin {
+    if spec.flags.admin_only() && who != Who::Admin {
         return Err("Admin only!");
     }
-    if !spec.flags.run_on_arm && armed {
+    if !spec.flags.run_on_arm() && armed {
         return Err("Not allow when vehicle is ARMED!");
     }
-    if !spec.flags.run_in_lock && locked && who != Who::Admin {
+    if !spec.flags.run_in_lock() && locked && who != Who::Admin {
         return Err("CMD not permitted to run in LOCK mode!");
     }
     Ok(())

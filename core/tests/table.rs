@@ -217,19 +217,19 @@ fn lookup_is_exact_and_case_sensitive() {
 fn gate_flags_match_design() {
     for spec in &TABLE {
         assert_eq!(
-            spec.flags.run_on_arm,
+            spec.flags.run_on_arm(),
             !NOT_WHILE_ARMED.contains(&spec.name()),
             "runOnArm of {}",
             spec.name()
         );
         assert_eq!(
-            spec.flags.run_in_lock,
+            spec.flags.run_in_lock(),
             !NOT_IN_LOCK.contains(&spec.name()),
             "runInLock of {}",
             spec.name()
         );
         assert_eq!(
-            spec.flags.admin_only,
+            spec.flags.admin_only(),
             ["admin_lock", "admin_unlock"].contains(&spec.name()),
             "admin-only of {}",
             spec.name()
@@ -248,7 +248,7 @@ fn safety_commands_are_never_gated_by_arm_or_lock() {
     for name in SAFETY {
         let spec = table::lookup(name).expect("safety command exists");
         assert!(
-            spec.flags.run_on_arm && spec.flags.run_in_lock && !spec.flags.admin_only,
+            spec.flags.run_on_arm() && spec.flags.run_in_lock() && !spec.flags.admin_only(),
             "{name}"
         );
     }

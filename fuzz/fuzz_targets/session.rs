@@ -135,13 +135,13 @@ impl Backend for Vehicle {
         let b = self.before.expect("execute runs only inside a message");
         let flags = cmd.id().spec().flags;
         assert!(!b.gated, "{:?} ran before login", cmd.id());
-        assert!(!(b.armed && !flags.run_on_arm), "{:?} ran while armed", cmd.id());
+        assert!(!(b.armed && !flags.run_on_arm()), "{:?} ran while armed", cmd.id());
         assert!(
-            !(b.locked && !b.admin() && !flags.run_in_lock),
+            !(b.locked && !b.admin() && !flags.run_in_lock()),
             "{:?} ran in lock mode",
             cmd.id()
         );
-        assert!(!flags.admin_only || b.admin(), "{:?} ran without admin", cmd.id());
+        assert!(!flags.admin_only() || b.admin(), "{:?} ran without admin", cmd.id());
         assert_eq!(
             (ctx.role, ctx.lock_mode, ctx.session, ctx.now_ms),
             (b.role, b.locked, b.session, b.now)
@@ -314,15 +314,15 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
                 "{frame:?} succeeded before login"
             );
             assert!(
-                !(spec.flags.admin_only && !b.admin()),
+                !(spec.flags.admin_only() && !b.admin()),
                 "{frame:?} succeeded without admin"
             );
             assert!(
-                !(b.armed && !spec.flags.run_on_arm),
+                !(b.armed && !spec.flags.run_on_arm()),
                 "{frame:?} succeeded while armed"
             );
             assert!(
-                !(b.locked && !b.admin() && !spec.flags.run_in_lock),
+                !(b.locked && !b.admin() && !spec.flags.run_in_lock()),
                 "{frame:?} succeeded in lock"
             );
         }

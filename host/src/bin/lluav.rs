@@ -483,13 +483,13 @@ fn print_command(name: &str) {
         Some(spec) => {
             println!("{}\n  {}", spec.usage, spec.summary());
             let mut notes = Vec::new();
-            if !spec.flags.run_on_arm {
+            if !spec.flags.run_on_arm() {
                 notes.push("refused while armed");
             }
-            if !spec.flags.run_in_lock {
+            if !spec.flags.run_in_lock() {
                 notes.push("refused in lock mode unless admin");
             }
-            if spec.flags.admin_only {
+            if spec.flags.admin_only() {
                 notes.push("admin only");
             }
             match spec.class {
