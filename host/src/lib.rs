@@ -20,7 +20,8 @@
 //!   service (readiness, watchdog and status; log lines for the journal;
 //!   `--check-config`);
 //! - [`uplink`]: the protocol through an MQTT broker (vehicles behind NAT,
-//!   fleets), and the operator's side of it.
+//!   fleets), and the operator's side of it;
+//! - [`terminal`]: text from the network made safe to print.
 
 #![warn(missing_docs)]
 
@@ -38,5 +39,6 @@ pub mod notify;
 pub mod onboard;
 pub mod recent_log;
 pub mod sim;
+pub mod terminal;
 pub mod uplink;
 pub mod vehicle;

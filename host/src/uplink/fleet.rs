@@ -40,6 +40,7 @@ use super::json;
 use super::serve::unix_ms;
 use super::topic::{self, Topics, valid_name};
 use crate::client::{ClientError, Response};
+use crate::terminal;
 
 /// How long the first listing waits for the retained messages at most.
 pub const LISTING_WAIT: Duration = Duration::from_secs(1);
@@ -121,13 +122,13 @@ impl VehicleInfo {
     }
 
     /// A row of the fleet table: id, online, fsm, armed, battery,
-    /// position, age.
+    /// position, age; what the vehicle wrote is escaped for a terminal.
     pub fn row(&self) -> [String; 7] {
         let s = self.state.as_ref().map(|r| &r["state"]);
         let field = |key: &str| s.map(|s| &s[key]).filter(|v| !v.is_null());
         let text = |v: Option<&Value>| match v {
-            Some(Value::String(s)) => s.clone(),
-            Some(v) => v.to_string(),
+            Some(Value::String(s)) => terminal::escape(s).into_owned(),
+            Some(v) => terminal::escape(&v.to_string()).into_owned(),
             None => "-".to_owned(),
         };
         let battery = field("battery")
