@@ -12,8 +12,12 @@
 //! certificate for `localhost` and `127.0.0.1` issued by this process's
 //! own test CA ([`test_ca`], made with rcgen); [`Conn`] trusts that CA.
 //! [`over_ws_and_wss!`] runs a set of tests both ways.
+//!
+//! For the uplink: [`broker`] starts real Mosquittos and speaks MQTT 5 to
+//! them; [`flooder`] is a stand-in broker that floods and never reads.
 
 pub mod broker;
+pub mod flooder;
 
 use std::io::{BufRead, BufReader, Read};
 use std::net::{IpAddr, SocketAddr};

@@ -482,17 +482,20 @@ async fn serve<S: Sessions>(shared: &Shared<S>, take: Take, out: &mut [u8]) {
             shared.notes.note(Trouble::Store);
         }
     }
-    let (copies, ended) = {
-        let mut table = shared.table();
-        let copies = table.finish(&client, &job, session, answer.clone());
-        (copies, table.ended())
-    };
-    for session in ended {
-        shared.sessions.close(session);
-    }
+    // The answer and its copies go out before the client's next request
+    // runs: whoever sent a repeat gets its answer before the next one's.
+    let copies = shared.table().answered(&job, answer.clone());
     let topic = shared.topics.response(&client);
     for _ in 0..=copies {
         shared.outbox.post(topic.clone(), answer.clone()).await;
+    }
+    let ended = {
+        let mut table = shared.table();
+        table.release(&client, &job, session);
+        table.ended()
+    };
+    for session in ended {
+        shared.sessions.close(session);
     }
 }
 

@@ -23,7 +23,7 @@
 //!
 //! A repeated id within the window never runs again: it gets the stored
 //! answer ([`Admit::Repeat`]), or, while the first copy still runs, the
-//! same answer once it exists ([`Admit::Copy`]: [`Table::finish`] says
+//! same answer once it exists ([`Admit::Copy`]: [`Table::answered`] says
 //! how many copies wait for it). Ids are kept as keyed 64-bit hashes of
 //! (client, id), so no client can make its ids collide with another's.
 //!
@@ -447,7 +447,7 @@ impl Table {
     }
 
     /// The next request to run, or `None` when none waits. The client's
-    /// other requests wait until this one is [`Table::finish`]ed. Requests
+    /// other requests wait until this one is [`Table::release`]d. Requests
     /// whose expiry passed by `now` are dropped unrun, as never received
     /// (in the second value: how many).
     pub fn take(&mut self, now: u64) -> (Option<Take>, usize) {
@@ -477,12 +477,26 @@ impl Table {
         (None, expired)
     }
 
-    /// Records the answer to `job` of `client` (as sent) and gives back
-    /// the session (`None` when it ended with this request); the answer is
+    /// Keeps the answer to `job` (as sent) for its repeats; the answer is
     /// to be sent `1 +` the returned number of times (the copies that came
-    /// while it ran). `keep`: whether to keep the answer for repeats (else
-    /// the id stays, refusing a rerun).
-    pub fn finish(&mut self, client: &str, job: &Job, session: Option<Session>, answer: Bytes) -> u16 {
+    /// while it ran). The client's next request waits for
+    /// [`Table::release`]: its answers go out after these.
+    pub fn answered(&mut self, job: &Job, answer: Bytes) -> u16 {
+        let copies = match self.ids.recs.get(&job.key) {
+            Some(Rec {
+                state: State::Running { copies },
+                at,
+                ..
+            }) if *at == job.at => *copies,
+            _ => return 0,
+        };
+        self.ids.keep(job.key, answer, &self.limits);
+        copies
+    }
+
+    /// Gives back the session of `client` after `job` (`None` when it
+    /// ended with the request): its next request may run.
+    pub fn release(&mut self, client: &str, job: &Job, session: Option<Session>) {
         self.running -= 1;
         self.queued_bytes -= job.frame.len();
         let who = self.client_key(client);
@@ -495,16 +509,6 @@ impl Table {
                 self.seats.remove(&who);
             }
         }
-        let copies = match self.ids.recs.get(&job.key) {
-            Some(Rec {
-                state: State::Running { copies },
-                at,
-                ..
-            }) if *at == job.at => *copies,
-            _ => return 0,
-        };
-        self.ids.keep(job.key, answer, &self.limits);
-        copies
     }
 
     /// Remembers, at start, a request of the last window that a previous
@@ -623,7 +627,8 @@ mod tests {
         let mut ran = Vec::new();
         while let (Some(Take { client, job, session }), _) = t.take(now) {
             let answer = Bytes::from(job.frame.to_string());
-            let copies = t.finish(&client, &job, Some(session.unwrap_or_default()), answer);
+            let copies = t.answered(&job, answer);
+            t.release(&client, &job, Some(session.unwrap_or_default()));
             ran.push((format!("{client}/{}", job.id), copies));
         }
         ran
@@ -744,7 +749,8 @@ mod tests {
         };
         let mut session = session.unwrap_or_default();
         auth.login(&mut session, "pw-test", 0);
-        t.finish(&client, &job, Some(session), Bytes::from("ok"));
+        t.answered(&job, Bytes::from("ok"));
+        t.release(&client, &job, Some(session));
         t.request("b", "1", "s", 1, None);
         assert_eq!(t.request("c", "1", "s", 2, None), Admit::Full);
         run_all(&mut t, 2);
@@ -771,7 +777,9 @@ mod tests {
         };
         assert_eq!((&*second.client, &*second.job.id), ("b", "1"));
         assert!(t.take(0).0.is_none(), "a's next waits for its first");
-        t.finish(&first.client, &first.job, None, Bytes::new());
+        assert_eq!(t.answered(&first.job, Bytes::new()), 0);
+        assert!(t.take(0).0.is_none(), "and for its answers to go out");
+        t.release(&first.client, &first.job, None);
         let (Some(next), _) = t.take(0) else {
             panic!("a's second")
         };
