@@ -142,6 +142,12 @@ impl Line {
     }
 }
 
+/// The line `entry` is written as (without its line break).
+pub fn line(entry: Entry) -> String {
+    // Strings and numbers only: serialising cannot fail.
+    serde_json::to_string(&Line::of(entry)).unwrap_or_default()
+}
+
 /// The requests of the last `window_ms` before `now` (Unix ms) that
 /// `lines` record, each with what last became of it; lines that cannot be
 /// read (a torn write) are skipped.
@@ -419,10 +425,6 @@ impl Writer {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn line(entry: Entry) -> String {
-        serde_json::to_string(&Line::of(entry)).expect("a line")
-    }
 
     fn started(id: &str, at: i64) -> Entry {
         Entry::Started {

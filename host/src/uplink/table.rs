@@ -73,7 +73,7 @@ impl Default for Limits {
             in_flight_total: 4096,
             in_flight_bytes: 4 << 20,
             window_ms: 10 * 60 * 1000,
-            ids: 16 << 10,
+            ids: 32 << 10,
             ids_total: 64 << 10,
             bytes: 256 << 10,
             bytes_total: 8 << 20,
