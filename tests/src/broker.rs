@@ -390,6 +390,11 @@ impl Mqtt {
     pub fn options(broker: &Mosquitto, client_id: &str) -> MqttOptions {
         let mut options = MqttOptions::new(client_id, "127.0.0.1", broker.port);
         options.set_max_packet_size(Some(1 << 20));
+        // Without it, Nagle's algorithm and delayed ACKs add about 40 ms to
+        // every round trip.
+        let mut network = rumqttc::NetworkOptions::new();
+        network.set_tcp_nodelay(true);
+        options.set_network_options(network);
         if broker.tls {
             let config = lluav_host::client::tls_config(Some(&test_ca().ca_file())).expect("the test CA");
             options.set_transport(rumqttc::Transport::tls_with_config(

@@ -1006,7 +1006,7 @@ async fn the_service_status_line_says_whether_the_uplink_is_up() {
     let dir = tempfile::tempdir().expect("temp dir");
     let socket_path = dir.path().join("notify");
     let socket = UnixDatagram::bind(&socket_path).expect("notify socket");
-    let mut daemon = Command::new(lluavd_bin())
+    let daemon = Command::new(lluavd_bin())
         .args([
             "--bind",
             "127.0.0.1:0",
@@ -1025,15 +1025,29 @@ async fn the_service_status_line_says_whether_the_uplink_is_up() {
         .stderr(Stdio::null())
         .spawn()
         .expect("lluavd spawns");
+    // Killed if the test fails before it stops it.
+    let mut daemon = KillOnDrop(daemon);
     status_until(&socket, "0 sessions; simulated vehicle; uplink up");
     broker.stop();
     status_until(&socket, "0 sessions; simulated vehicle; uplink down");
     broker.run();
     status_until(&socket, "0 sessions; simulated vehicle; uplink up");
     let _ = Command::new("kill")
-        .args(["-TERM", &daemon.id().to_string()])
+        .args(["-TERM", &daemon.0.id().to_string()])
         .status();
-    assert_eq!(daemon.wait().expect("lluavd ends").code(), Some(0));
+    assert_eq!(daemon.0.wait().expect("lluavd ends").code(), Some(0));
+}
+
+/// A child process killed when this goes out of scope.
+struct KillOnDrop(std::process::Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        if matches!(self.0.try_wait(), Ok(None)) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
 }
 
 #[test]

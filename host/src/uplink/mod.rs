@@ -258,7 +258,9 @@ async fn goodbye<S: Sessions>(
     gone: watch::Sender<bool>,
 ) {
     let deadline = Instant::now() + STOP_GRACE;
-    while (shared.busy() || shared.outbox.bytes() > 0) && Instant::now() < deadline {
+    // Answers waiting go out first, while there is a broker to take them.
+    let waiting = || shared.busy() || (shared.status.get() == Status::Up && shared.outbox.bytes() > 0);
+    while waiting() && Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     if shared.status.get() == Status::Up {

@@ -313,11 +313,11 @@ impl<S: Sessions> Shared<S> {
         for f in found {
             let age = u64::try_from(unix.saturating_sub(f.at)).unwrap_or(0);
             let restored = match f.outcome {
-                Previously::Answered(answer) => Restored::Answer(Bytes::from(answer)),
+                Previously::Answered(answer) => Restored::Answer(exact(answer)),
                 Previously::AnsweredNotKept => Restored::Answered,
                 Previously::Interrupted(cmd) => {
                     let response = envelope::error(Ret::SystemCall, cmd, unix, INTERRUPTED);
-                    Restored::Answer(Bytes::from(envelope::response(Some(&f.id), &response)))
+                    Restored::Answer(exact(envelope::response(Some(&f.id), &response)))
                 }
             };
             table.restore(&f.client, &f.id, age, now, restored);
@@ -342,7 +342,7 @@ impl<S: Sessions> Shared<S> {
         };
         let request = match envelope::read(&publish.payload, self.max_message) {
             Ok(r) => r,
-            Err(refused) => return self.answer_now(client, envelope::refused(&refused, unix_ms()).into()),
+            Err(refused) => return self.answer_now(client, exact(envelope::refused(&refused, unix_ms()))),
         };
         let now = self.now();
         let expires = publish
@@ -355,7 +355,7 @@ impl<S: Sessions> Shared<S> {
             .request(client, &request.id, &request.frame, now, expires);
         let refuse = |ret: Ret, msg: &str| {
             let response = envelope::error(ret, command_id(&request.frame), unix_ms(), msg);
-            envelope::response(Some(&request.id), &response).into()
+            exact(envelope::response(Some(&request.id), &response))
         };
         match admit {
             Admit::Queued => self.ready.notify_one(),
@@ -507,11 +507,18 @@ impl<S: Sessions> Shared<S> {
         let max = self.broker_max.load(Ordering::Relaxed) as usize;
         let size = answer.len() + self.topics.response(client).len() + PUBLISH_OVERHEAD;
         if max == 0 || size <= max {
-            return Bytes::from(answer);
+            return exact(answer);
         }
         let response = envelope::error(Ret::Failed, cmd, unix_ms(), TOO_LARGE);
-        Bytes::from(envelope::response(Some(&job.id), &response))
+        exact(envelope::response(Some(&job.id), &response))
     }
+}
+
+/// `text` in an allocation of its own size: an answer is kept for 10
+/// minutes, and the bounds count its bytes (a `String` built by `format!`
+/// may hold twice as many).
+fn exact(text: String) -> Bytes {
+    Bytes::from(text.into_bytes().into_boxed_slice())
 }
 
 /// Whether the answer to `frame` is kept on disk: its command changes the

@@ -76,7 +76,7 @@ impl Default for Limits {
             ids: 32 << 10,
             ids_total: 64 << 10,
             bytes: 256 << 10,
-            bytes_total: 8 << 20,
+            bytes_total: 4 << 20,
             copies: 16,
             idle_ms: 300 * 1000,
         }
@@ -159,15 +159,16 @@ struct Rec {
     state: State,
 }
 
-/// What one client holds in the id store.
+/// What one client holds in the id store (each within `u32`: the bounds
+/// are).
 #[derive(Clone, Copy, Debug, Default)]
 struct Use {
-    ids: usize,
-    bytes: usize,
+    ids: u32,
+    bytes: u32,
 }
 
 /// Every client's request ids of the last window, and the answers kept.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct Ids {
     recs: HashMap<u64, Rec>,
     /// (request time, key), oldest first: the order ids expire in.
@@ -181,6 +182,20 @@ struct Ids {
 }
 
 impl Ids {
+    /// An empty store with room for `limits.ids_total` ids made at once:
+    /// growing by doubling would leave the smaller tables behind as
+    /// fragments of the heap, and untouched room costs no memory.
+    fn new(limits: &Limits) -> Ids {
+        Ids {
+            recs: HashMap::with_capacity(limits.ids_total),
+            order: VecDeque::with_capacity(limits.ids_total),
+            answers: HashMap::new(),
+            kept: VecDeque::new(),
+            clients: HashMap::with_capacity(limits.ids_total),
+            bytes: 0,
+        }
+    }
+
     fn usage(&self, client: u64) -> Use {
         self.clients.get(&client).copied().unwrap_or_default()
     }
@@ -200,7 +215,7 @@ impl Ids {
         self.bytes -= freed;
         if let Some(usage) = self.clients.get_mut(&rec.client) {
             usage.ids -= 1;
-            usage.bytes -= freed;
+            usage.bytes -= freed as u32;
             if usage.ids == 0 {
                 self.clients.remove(&rec.client);
             }
@@ -217,11 +232,11 @@ impl Ids {
         let (client, at) = (rec.client, rec.at);
         self.bytes += answer.len();
         if let Some(usage) = self.clients.get_mut(&client) {
-            usage.bytes += answer.len();
+            usage.bytes += answer.len() as u32;
         }
         self.answers.insert(key, answer);
         self.kept.push_back((at, key));
-        while self.usage(client).bytes > limits.bytes {
+        while self.usage(client).bytes as usize > limits.bytes {
             let Some(at) = self
                 .kept
                 .iter()
@@ -263,7 +278,7 @@ impl Ids {
         if let Some(rec) = self.recs.get_mut(&key) {
             rec.state = State::Dropped;
             if let Some(usage) = self.clients.get_mut(&rec.client) {
-                usage.bytes -= freed;
+                usage.bytes -= freed as u32;
             }
         }
     }
@@ -354,7 +369,7 @@ impl Table {
             limits,
             seats: HashMap::new(),
             ready: VecDeque::new(),
-            ids: Ids::default(),
+            ids: Ids::new(&limits),
             keys: RandomState::new(),
             queued: 0,
             queued_bytes: 0,
@@ -394,7 +409,7 @@ impl Table {
         }
         let who = self.client_key(client);
         let limits = self.limits;
-        if self.ids.recs.len() >= limits.ids_total || self.ids.usage(who).ids >= limits.ids {
+        if self.ids.recs.len() >= limits.ids_total || self.ids.usage(who).ids as usize >= limits.ids {
             return Admit::IdsFull;
         }
         let in_flight = self.seats.get(&who).map_or(0, Seat::in_flight);
