@@ -47,6 +47,8 @@ for t in "${TARGETS[@]}"; do zig_targets+=(--target "$t.$GLIBC"); done
 cargo zigbuild --locked --profile deb -p lluav-host --bins "${zig_targets[@]}"
 
 mkdir -p "$target_dir/debian"
+# Only this build's packages: an older version's would look built.
+rm -f "$target_dir"/debian/lluavd_*.deb
 for t in "${TARGETS[@]}"; do
     # Stripped by the profile already; cargo-deb's strip would be this
     # machine's, which does not read arm64 binaries.

@@ -15,6 +15,8 @@
 #     the emulator's);
 #   - the figures for BENCHMARKS.md "Packages" (sizes, exec to READY=1,
 #     idle RSS, exposure).
+# `--built`: the packages are built already (scripts/test.sh builds them
+# in the background while other suites run).
 # Needs root (apt, dpkg, mount). Installs qemu-user-static,
 # libc6-arm64-cross, systemd (for systemd-analyze), binutils and adduser
 # when missing.
@@ -49,9 +51,14 @@ if [ ${#missing[@]} -gt 0 ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
 
-step "deploy: build the Debian packages (scripts/package.sh)"
-rm -f "$target_dir"/debian/lluavd_*.deb
-bash scripts/package.sh
+if [ "${1:-}" = --built ]; then
+    # scripts/test.sh built them alongside the other suites.
+    ls "$target_dir"/debian/lluavd_*_amd64.deb "$target_dir"/debian/lluavd_*_arm64.deb >/dev/null
+else
+    step "deploy: build the Debian packages (scripts/package.sh)"
+    rm -f "$target_dir"/debian/lluavd_*.deb
+    bash scripts/package.sh
+fi
 
 # The newest glibc symbol version a binary needs.
 glibc_needed() { readelf --dyn-syms -W "$1" | grep -o 'GLIBC_[0-9.]*' | sed 's/GLIBC_//' | sort -uV | tail -n 1; }

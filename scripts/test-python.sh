@@ -49,13 +49,20 @@ echo "== lints"
 "$work/tools/bin/ruff" check python
 "$work/tools/bin/ruff" format --check python
 
+echo "== lluavd"
+find_lluavd
+
+# One target directory for both builds of the extension (the wheel and
+# pip's build of ./python below): same profile, same features, so pip's
+# build finds it done instead of compiling it all again.
+export CARGO_TARGET_DIR=$work/cargo
+
 echo "== wheel"
 rm -rf "$work/wheels"
 "$work/tools/bin/maturin" build --release -m python/Cargo.toml -i "$work/tools/bin/python" --out "$work/wheels"
 wheel=$(ls "$work"/wheels/lluav-*.whl)
 
-echo "== lluavd, mosquitto"
-find_lluavd
+echo "== mosquitto"
 bash scripts/mosquitto.sh
 
 run_suite() {

@@ -14,9 +14,7 @@
 //!   last answered 0, until it ends, releases, lapses after the backend's
 //!   control timeout without a request, or someone takes over.
 
-use core::fmt::Write as _;
-use core::net::SocketAddr;
-
+use crate::number::Digits;
 use crate::response::Fields;
 use crate::session::SessionId;
 
@@ -33,17 +31,23 @@ impl Label {
     /// No label yet.
     pub(crate) const EMPTY: Label = Label(heapless::String::new());
 
-    /// The label of session `id` reached `via` a transport.
+    /// The label of session `id` reached `via` a transport. Written
+    /// without `core::fmt`, which a firmware would link for it.
     pub(crate) fn new(via: Via<'_>, id: SessionId) -> Label {
-        let mut label = heapless::String::new();
-        // The longest form fits MAX_LABEL_LEN; a longer client id (never
-        // valid on the uplink) would only be cut.
-        let _ = match via {
-            Via::WebSocket(addr) => write!(label, "ws {addr} #{}", id.0),
-            Via::Uplink(client) => write!(label, "mqtt {}", crate::error::cut_at_char_boundary(client, 64)),
-            Via::Local => write!(label, "local #{}", id.0),
+        let mut label = Label(heapless::String::new());
+        let session = Digits::of(i64::from(id.0));
+        let parts: [&str; 4] = match via {
+            Via::WebSocket(addr) => ["ws ", addr, " #", session.as_str()],
+            Via::Uplink(client) => ["mqtt ", client, "", ""],
+            Via::Local => ["local #", session.as_str(), "", ""],
         };
-        Label(label)
+        for part in parts {
+            // Cut at a character boundary: a label never holds half a
+            // character, and the longest valid one fits.
+            let room = MAX_LABEL_LEN - label.0.len();
+            let _ = label.0.push_str(crate::error::cut_at_char_boundary(part, room));
+        }
+        label
     }
 
     /// The label's text.
@@ -55,8 +59,10 @@ impl Label {
 /// How a session reaches the vehicle, for its [`Label`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Via<'a> {
-    /// A WebSocket connection from this address.
-    WebSocket(SocketAddr),
+    /// A WebSocket connection from this address and port, as the adapter
+    /// writes it (`192.0.2.7:51234`, `[2001:db8::1]:40000`): an adapter
+    /// that only ever sees IPv4 never links IPv6's formatting.
+    WebSocket(&'a str),
     /// A client id through the uplink's broker.
     Uplink(&'a str),
     /// In-process (tests, the daemon's own reports).
@@ -130,6 +136,12 @@ impl Failsafe {
         Reason(self)
     }
 
+    /// The reason in parts, to write without `core::fmt`.
+    pub fn reason_parts(&self) -> [&'static str; 3] {
+        let sep = if self.detail.is_empty() { "" } else { ": " };
+        [self.source, sep, self.detail]
+    }
+
     /// Whether it still refuses motion commands.
     pub fn holds(&self) -> bool {
         !self.overridden
@@ -175,6 +187,12 @@ impl Pilot {
     /// Since when it holds control, ms since the Unix epoch.
     pub fn since_ms(&self) -> i64 {
         self.since_ms
+    }
+
+    /// When its session's last request arrived, ms since the Unix epoch
+    /// (control lapses `control_timeout` after it).
+    pub fn last_ms(&self) -> i64 {
+        self.last_ms
     }
 
     /// Whether it took control as an admin (in lock mode it then keeps it

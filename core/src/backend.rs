@@ -51,8 +51,11 @@ impl Context<'_> {
     /// `control` answers it, without `you`, or `null`).
     pub fn write_authority(&self, state: &mut Fields<'_>) {
         match self.failsafe {
-            Some(f) if f.overridden => state.display("failsafe", format_args!("{} (overridden)", f.reason())),
-            Some(f) => state.display("failsafe", format_args!("{}", f.reason())),
+            Some(f) => {
+                let [source, sep, detail] = f.reason_parts();
+                let overridden = if f.overridden { " (overridden)" } else { "" };
+                state.str_parts("failsafe", &[source, sep, detail, overridden])
+            }
             None => state.null("failsafe"),
         };
         match self.pilot {
@@ -77,8 +80,9 @@ pub enum Step {
 
 /// The vehicle behind the protocol.
 ///
-/// The core runs `login`, `help`, `admin_lock`, `admin_unlock` and the
-/// session side of `passwd` itself; every other command reaches
+/// The core runs `login`, `help`, `admin_lock`, `admin_unlock`, `control`,
+/// `control_take`, `control_release` and the session side of `passwd`
+/// itself; every other command reaches
 /// [`Backend::execute`] only after all gates passed and its arguments were
 /// validated.
 pub trait Backend {

@@ -97,6 +97,8 @@ pub enum Args<'a> {
     Path(&'a str),
     /// Free text.
     Text(&'a str),
+    /// A task name.
+    TaskName(&'a str),
     /// A login password.
     Secret(&'a str),
     /// A new login password.
@@ -163,6 +165,7 @@ impl Args<'_> {
             Args::OptName(_) => Grammar::OptName,
             Args::Path(_) => Grammar::Path,
             Args::Text(_) => Grammar::Text,
+            Args::TaskName(_) => Grammar::TaskName,
             Args::Secret(_) => Grammar::Secret,
             Args::NewPassword(_) => Grammar::NewPassword,
             Args::ParamName(_) => Grammar::ParamName,

@@ -40,6 +40,7 @@ impl Command<'_> {
             | Args::OptName(Some(s))
             | Args::Path(s)
             | Args::Text(s)
+            | Args::TaskName(s)
             | Args::Secret(s)
             | Args::NewPassword(s)
             | Args::ParamName(s) => {

@@ -44,18 +44,19 @@ pub enum ArgError {
     /// A field that should be a number is not a decimal number (`nan`
     /// and `inf` are not).
     NotANumber,
-    /// A number is too large for its type, or a hand-built one is NaN or
-    /// infinite.
+    /// A hand-built number is NaN or infinite.
     NotFinite,
-    /// A number is outside its stated range.
-    OutOfRange,
+    /// A value is outside its range (a number too large for its type
+    /// included); the reason names the range.
+    OutOfRange(Bound),
     /// A setpoint at or below the ground (`z >= 0`, NED from home).
     AtOrBelowGround,
     /// A flag is not exactly `0` or `1`.
     NotAFlag,
     /// A name or path could escape its directory or holds forbidden bytes.
     UnsafePath,
-    /// A text field holds control characters or is too long.
+    /// A text field holds control or format characters (Unicode Cc, Cf)
+    /// or ends with a space.
     BadText,
     /// A list holds more items than its fixed capacity.
     TooMany,
@@ -63,17 +64,50 @@ pub enum ArgError {
     BadJson,
     /// A new password breaks the password rules.
     BadPassword,
+    /// A new password is one of the special login values (admin, logout).
+    SpecialPassword,
     /// [`crate::Command::new`] got arguments of another command's grammar.
     WrongGrammar,
 }
 
 impl ArgError {
-    /// What a client must be told beyond the usage line, if anything.
+    /// What a client must be told instead of the usage line, if anything:
+    /// every range refusal names the range (DESIGN.md, "Request grammar").
     pub fn reason(self) -> Option<&'static str> {
-        match self {
-            ArgError::AtOrBelowGround => Some(messages::GROUND),
-            _ => None,
-        }
+        let at = match self {
+            ArgError::AtOrBelowGround => 0,
+            ArgError::SpecialPassword => 1,
+            ArgError::OutOfRange(bound) => 2 + bound as usize,
+            _ => return None,
+        };
+        messages::REASONS.get(at).copied()
+    }
+}
+
+/// The range a value left: each names itself in the refusal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum Bound {
+    /// An angle, -90..90 degrees.
+    Angle,
+    /// A number that may not be negative.
+    NonNegative,
+    /// A PWM value, 0..65535.
+    Pwm,
+    /// An id or count: an unsigned 32-bit integer.
+    Integer,
+    /// A number a 32-bit float can hold.
+    Float,
+    /// Free text (a plan): at most [`crate::parse::MAX_TEXT_LEN`] bytes.
+    Text,
+    /// A task name: at most [`crate::parse::MAX_TASK_NAME_LEN`] bytes.
+    TaskName,
+}
+
+impl Bound {
+    /// The refusal's reason, naming the range.
+    pub fn reason(self) -> &'static str {
+        ArgError::OutOfRange(self).reason().unwrap_or("")
     }
 }
 
@@ -121,6 +155,8 @@ pub struct Failure {
     msg: heapless::String<FAILURE_MSG_CAPACITY>,
     /// The message is in the response buffer ([`crate::Fields::fail`]).
     written: bool,
+    /// Seconds until a refused login may be tried again (0: not one).
+    retry_after_s: u32,
 }
 
 impl Failure {
@@ -131,6 +167,7 @@ impl Failure {
             ret,
             msg: heapless::String::new(),
             written: false,
+            retry_after_s: 0,
         };
         push_truncated(&mut f.msg, msg);
         f
@@ -145,15 +182,18 @@ impl Failure {
             ret,
             msg: w.0,
             written: false,
+            retry_after_s: 0,
         }
     }
 
-    /// ret -2 with the command's usage line, as a parse error answers:
-    /// `Invalid arguments, usage: ...`. Written without `core::fmt`, which
-    /// an MCU would otherwise link for this one message.
-    pub(crate) fn usage(id: CommandId) -> Self {
-        let mut f = Failure::new(Ret::InvalidArgs, messages::INVALID_ARGS_PREFIX);
-        push_truncated(&mut f.msg, id.spec().usage);
+    /// ret -2 as a parse error of `id` with `e` answers: `Invalid
+    /// arguments: <reason>`, or `Invalid arguments, usage: ...` for an
+    /// error without one. Written without `core::fmt`, which an MCU would
+    /// otherwise link for this one message.
+    pub(crate) fn invalid(id: CommandId, e: ArgError) -> Self {
+        let [prefix, text] = ParseError::InvalidArgs(id, e).parts();
+        let mut f = Failure::new(Ret::InvalidArgs, prefix);
+        push_truncated(&mut f.msg, text);
         f
     }
 
@@ -164,7 +204,22 @@ impl Failure {
             ret,
             msg: heapless::String::new(),
             written: true,
+            retry_after_s: 0,
         }
+    }
+
+    /// A login the throttle refused, and when to try again (at least 1 s:
+    /// 0 would mean it is not one).
+    pub(crate) fn throttled(retry_after_s: u32) -> Self {
+        Failure {
+            retry_after_s,
+            ..Failure::failed(messages::THROTTLED)
+        }
+    }
+
+    /// Seconds until a refused login may be tried again, if it is one.
+    pub(crate) fn retry_after_s(&self) -> Option<u32> {
+        (self.retry_after_s > 0).then_some(self.retry_after_s)
     }
 
     /// Whether the message is in the response buffer rather than here.
@@ -232,6 +287,21 @@ pub mod messages {
     /// A setpoint at or below the ground.
     pub const GROUND: &str =
         "setpoint at or below the ground (z >= 0; up is negative z): use land to descend";
+    /// The reasons [`super::ArgError::reason`] gives, in its order: a
+    /// setpoint at or below the ground, a special login value as a new
+    /// password, then one per [`super::Bound`], in its order. One table,
+    /// so that a firmware links one lookup for all of them.
+    pub const REASONS: [&str; 9] = [
+        GROUND,
+        "the admin and logout values cannot be passwords",
+        "angle out of range -90..90",
+        "number below 0",
+        "PWM value out of range 0..65535",
+        "integer out of range 0..4294967295",
+        "number beyond a 32-bit float (3.4028235e38)",
+        "text longer than 4096 bytes",
+        "task name longer than 256 bytes",
+    ];
     /// Not logged in.
     pub const LOGIN_FIRST: &str = "Login first!";
     /// Wrong password.

@@ -10,6 +10,7 @@
 
 use crate::authority::{Control, Failsafe, Pilot};
 use crate::error::{Failure, Refusal, Ret, messages};
+use crate::number::Digits;
 use crate::response::Fields;
 use crate::session::{Auth, Session};
 use crate::table::{Class, Flags};
@@ -61,35 +62,25 @@ impl Held<'_> {
     /// Writes the refusal's message into the response (-1).
     pub fn fail(&self, out: &mut Fields<'_>) -> Failure {
         match self {
-            Held::Failsafe(f) => out.fail(
-                Ret::Failed,
-                format_args!(
-                    "{}{}{}",
-                    messages::FAILSAFE_OPEN,
-                    f.reason(),
-                    messages::FAILSAFE_MOTION
-                ),
-            ),
-            Held::Landing(f) => out.fail(
-                Ret::Failed,
-                format_args!(
-                    "{}{}{}",
-                    messages::FAILSAFE_OPEN,
-                    f.reason(),
-                    messages::FAILSAFE_LANDING
-                ),
-            ),
-            Held::Flown(p) => out.fail(
-                Ret::Failed,
-                format_args!(
-                    "{}{}{}{}{}",
+            Held::Failsafe(f) | Held::Landing(f) => {
+                let [source, sep, detail] = f.reason_parts();
+                let tail = match self {
+                    Held::Landing(_) => messages::FAILSAFE_LANDING,
+                    _ => messages::FAILSAFE_MOTION,
+                };
+                out.fail_parts(Ret::Failed, &[messages::FAILSAFE_OPEN, source, sep, detail, tail])
+            }
+            Held::Flown(p) => {
+                let since = Digits::of(p.since_ms());
+                let parts = [
                     messages::FLOWN_BY,
                     p.label(),
                     messages::FLOWN_SINCE,
-                    p.since_ms(),
-                    messages::FLOWN_TAKE
-                ),
-            ),
+                    since.as_str(),
+                    messages::FLOWN_TAKE,
+                ];
+                out.fail_parts(Ret::Failed, &parts)
+            }
         }
     }
 }

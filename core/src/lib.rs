@@ -10,6 +10,8 @@
 //! - [`parse()`] / [`Command::encode`]: frame ↔ typed [`Command`], mirror
 //!   images of each other, borrowing from the frame;
 //! - [`gate`] and [`session`]: login, admin, armed and lock gates;
+//! - [`authority`]: who flies (one session in control) and the failsafes
+//!   no motion command cancels, gated before the backend;
 //! - [`response`]: JSON responses in caller-provided fixed buffers;
 //! - [`Backend`] and [`Clock`]: what an adapter supplies;
 //! - [`throttle`]: password guessing limited per client and across all;
@@ -66,7 +68,7 @@ pub mod websocket;
 pub use authority::{Action, Control, Failsafe, Label, Pilot, Via};
 pub use backend::{Backend, Clock, Context, DEFAULT_CONTROL_TIMEOUT_MS, Step, Ticket};
 pub use command::{Args, Command, LandPoint, MAX_HEIGHTS, MAX_WAYPOINT_IDS, Payload, Point, Pose};
-pub use error::{ArgError, Failure, ParseError, Refusal, Ret};
+pub use error::{ArgError, Bound, Failure, ParseError, Refusal, Ret};
 pub use number::Number;
 pub use parse::parse;
 pub use response::{Fields, Items, MIN_RESPONSE_CAPACITY};

@@ -4,7 +4,8 @@
 //! [`Server::handle`] runs the whole protocol: DESIGN.md's WebSocket close
 //! policy ([`Message::text`]), the gates in order, argument parsing, the
 //! session commands the core owns (`login`, `help`, `admin_lock`,
-//! `admin_unlock`, `passwd`), the backend, and the response. Adapters own
+//! `admin_unlock`, `passwd`, and flight authority's `control`,
+//! `control_take`, `control_release`), the backend, and the response. Adapters own
 //! sockets and framing only: they open a [`Session`] per connection with
 //! [`Server::open`], hand every message to [`Server::handle`], carry out the
 //! [`Outcome`] (calling [`Server::resume`] once a pending backend is ready)
@@ -13,11 +14,11 @@
 use crate::authority::{Control, Label, Via};
 use crate::backend::{Backend, Clock, Context, Step, Ticket};
 use crate::command::{Args, Command};
-use crate::error::{Failure, ParseError, Refusal, Ret, messages};
+use crate::error::{ArgError, Failure, ParseError, Refusal, Ret, messages};
 use crate::gate;
 use crate::parse::{self, Split};
 use crate::response::{self, Fields};
-use crate::session::{Auth, LoginOutcome, Peer, Pending, Session, SessionId};
+use crate::session::{Auth, AuthError, LoginOutcome, Peer, Pending, Session, SessionId};
 use crate::table::{CommandId, TABLE, lookup};
 use crate::throttle::{DefaultSlots, Slots};
 
@@ -223,6 +224,15 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         self.backend.session_closed(session.id());
     }
 
+    /// When control lapses unless its session speaks first, ms since the
+    /// Unix epoch; `None` while control is free. An adapter that tells
+    /// others when control lapses waits until then and calls
+    /// [`Server::expire_control`].
+    pub fn control_lapses_at(&self) -> Option<i64> {
+        let timeout = i64::from(self.backend.control_timeout_ms());
+        self.control.pilot().map(|p| p.last_ms().saturating_add(timeout))
+    }
+
     /// Ends control held without a request for the backend's control
     /// timeout; returns whether it did. Checked before every request
     /// anyway; an adapter that tells others when control lapses calls it
@@ -374,7 +384,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             (CommandId::Help, _) => {
                 out.array("commands", |a| {
                     for spec in &TABLE {
-                        a.str(spec.name);
+                        a.str(spec.name());
                     }
                 });
             }
@@ -425,15 +435,15 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         }
         match self.backend.failsafe() {
             Some(f) if f.holds() && !word => {
-                return Err(out.fail(
-                    Ret::Failed,
-                    format_args!(
-                        "{}{}{}",
-                        messages::FAILSAFE_OPEN,
-                        f.reason(),
-                        messages::FAILSAFE_TAKE
-                    ),
-                ));
+                let [source, sep, detail] = f.reason_parts();
+                let parts = [
+                    messages::FAILSAFE_OPEN,
+                    source,
+                    sep,
+                    detail,
+                    messages::FAILSAFE_TAKE,
+                ];
+                return Err(out.fail_parts(Ret::Failed, &parts));
             }
             Some(f) if f.holds() => self.backend.override_failsafe()?,
             _ => {}
@@ -454,7 +464,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         close: &mut Option<CloseCode>,
     ) -> Result<(), Failure> {
         match self.auth.login(session, attempt, now) {
-            LoginOutcome::Throttled => return Err(Failure::failed(messages::THROTTLED)),
+            LoginOutcome::Throttled { retry_after_s } => return Err(Failure::throttled(retry_after_s)),
             LoginOutcome::Wrong { close: shut } => {
                 if shut {
                     *close = Some(CloseCode::Policy);
@@ -469,10 +479,18 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
     }
 
     fn passwd(&mut self, session: &mut Session, new: &str) -> Result<(), Failure> {
-        let bad = |_| Failure::usage(CommandId::Passwd);
+        let bad = |e| {
+            let why = match e {
+                AuthError::BadPassword => ArgError::BadPassword,
+                AuthError::Ambiguous => ArgError::SpecialPassword,
+            };
+            Failure::invalid(CommandId::Passwd, why)
+        };
         self.auth.check_password(new).map_err(bad)?;
         self.backend.password_changed(new)?;
-        self.auth.set_password(new).map_err(bad)?;
+        // Checked just above, against the same login values: it cannot
+        // fail now.
+        let _ = self.auth.set_password(new);
         self.auth.admit(session);
         Ok(())
     }
@@ -509,7 +527,13 @@ fn write<'o>(
             .or_else(|| response::write_error(out, Ret::Failed, cmd, ts, &[messages::TOO_LARGE])),
         Answer::Error(ret, cmd, parts) => response::write_error(out, ret, cmd, ts, &parts),
         Answer::Failed(cmd, f, end) => match (f.is_written(), end) {
-            (false, _) => response::write_error(out, f.ret(), cmd, ts, &[f.msg()]),
+            (false, _) => {
+                let len = response::write_error(out, f.ret(), cmd, ts, &[f.msg()]);
+                match f.retry_after_s() {
+                    Some(secs) => len.and_then(|end| response::retry_after(out, end, secs)),
+                    None => len,
+                }
+            }
             (true, Some(end)) => response::finish(out, f.ret(), cmd, ts, end),
             // Written into some other buffer: a backend bug, not the
             // client's; say so rather than send a message that isn't there.

@@ -151,7 +151,7 @@ impl core::fmt::Debug for Secret {
 
 impl Secret {
     fn new(s: &str) -> Result<Self, ArgError> {
-        crate::parse::rules::new_password(s)?;
+        crate::parse::rules::password_chars(s)?;
         let mut bytes = [0u8; MAX_PASSWORD_LEN];
         bytes
             .get_mut(..s.len())
@@ -194,7 +194,11 @@ pub enum LoginOutcome {
         close: bool,
     },
     /// The session's address is locked out: the attempt was not checked.
-    Throttled,
+    Throttled {
+        /// Whole seconds until a password from this peer may be checked
+        /// again (at least 1), as far as the throttle can tell now.
+        retry_after_s: u32,
+    },
 }
 
 /// Vehicle-wide login state, shared by all sessions; `S` is the storage of
@@ -315,11 +319,10 @@ impl<S: Slots> Auth<S> {
     /// session's peer (locked out, no room for its record, or the budget
     /// of wrong passwords spent).
     pub fn login(&mut self, session: &mut Session, attempt: &str, now_ms: i64) -> LoginOutcome {
-        if session
-            .peer
-            .is_some_and(|peer| !self.throttle.admits(&peer, now_ms))
-        {
-            return LoginOutcome::Throttled;
+        if let Some(wait_ms) = session.peer.and_then(|peer| self.throttle.wait(&peer, now_ms)) {
+            return LoginOutcome::Throttled {
+                retry_after_s: wait_ms.div_ceil(1000),
+            };
         }
         let a = attempt.as_bytes();
         let is_admin = self.admin.matches(a);

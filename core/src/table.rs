@@ -34,8 +34,11 @@ pub enum Grammar {
     OptName,
     /// A relative path made of single path components joined by `/`.
     Path,
-    /// Free text: the rest of the frame.
+    /// Free text: the rest of the frame, no control or format characters
+    /// (Unicode Cc, Cf), at most 4096 bytes.
     Text,
+    /// A task name: text as [`Grammar::Text`], at most 256 bytes.
+    TaskName,
     /// A login password: the rest of the frame.
     Secret,
     /// A new login password: 1–32 printable ASCII characters, no space.
@@ -200,8 +203,9 @@ impl Marks {
 pub struct Spec {
     /// The stable id sent as `cmd`.
     pub id: CommandId,
-    /// The name on the wire.
-    pub name: &'static str,
+    /// The name's length: the name on the wire is the start of the usage
+    /// line ([`Spec::name`]), stored once.
+    name_len: u8,
     /// Where the specification lists it.
     pub section: Section,
     /// How the arguments are written.
@@ -217,6 +221,14 @@ pub struct Spec {
 }
 
 impl Spec {
+    /// The name on the wire: the start of the usage line.
+    pub const fn name(&self) -> &'static str {
+        match self.usage.split_at_checked(self.name_len as usize) {
+            Some((name, _)) => name,
+            None => self.usage,
+        }
+    }
+
     /// One line saying what the command does (kept out of the table so
     /// that a firmware that never prints it links none of the text).
     pub fn summary(&self) -> &'static str {
@@ -255,7 +267,7 @@ macro_rules! command_table {
         pub static TABLE: [Spec; [$( $($id,)* )*].len()] = [
             $( $( Spec {
                 id: CommandId::$variant,
-                name: $name,
+                name_len: name_in($usage, $name),
                 section: Section::$section,
                 grammar: Grammar::$grammar,
                 flags: marks!($($flag)*).flags,
@@ -333,7 +345,7 @@ command_table! {
         38 DumpMissionresult "dump_missionresult" OptCount [READ] "dump_missionresult [ext_id]" "Dump a mission result.";
         39 DumpMissionlist "dump_missionlist" None [READ] "dump_missionlist" "Dump the short mission request list.";
         40 AbortReport "abort_report" OptCount [STOPS_MISSION] "abort_report [abort_id]" "Abort or finish a mission report.";
-        41 SetTaskname "set_taskname" Text [] "set_taskname name" "Set the current task name.";
+        41 SetTaskname "set_taskname" TaskName [] "set_taskname name" "Set the current task name.";
     }
     Map {
         42 Savemap "savemap" Name [NO_ARM NO_LOCK] "savemap name" "Save the current map.";
@@ -416,6 +428,22 @@ command_table! {
     }
 }
 
+/// `name`, as the start of `usage` (which begins with the name and a space,
+/// or is the name alone): the same text, stored once. A firmware's flash
+/// holds every usage line; the names would be about a kilobyte more.
+const fn name_in(usage: &'static str, name: &'static str) -> u8 {
+    let (head, rest) = match usage.split_at_checked(name.len()) {
+        Some(parts) => parts,
+        None => ("", ""),
+    };
+    assert!(
+        same(head.as_bytes(), name.as_bytes()) && matches!(rest.as_bytes().first(), None | Some(b' ')),
+        "a usage line starts with its command's name"
+    );
+    assert!(name.len() <= u8::MAX as usize, "a name fits its length byte");
+    name.len() as u8
+}
+
 // The table is indexed by `id - 1`; a row out of order would break `spec()`.
 const _: () = {
     let mut rows: &[Spec] = &TABLE;
@@ -476,7 +504,7 @@ const fn at(index: &[u8], i: usize) -> u8 {
 /// The name of the command in slot value `v` (row + 1), for compile time.
 const fn name_of(v: u8) -> &'static [u8] {
     match TABLE.split_at_checked((v as usize).wrapping_sub(1)) {
-        Some((_, [spec, ..])) => spec.name.as_bytes(),
+        Some((_, [spec, ..])) => spec.name().as_bytes(),
         _ => b"",
     }
 }
@@ -486,7 +514,7 @@ const fn name_index() -> [u8; SLOTS] {
     let mut rows: &[Spec] = &TABLE;
     let mut row = 0;
     while let Some((spec, rest)) = rows.split_first() {
-        let name = spec.name.as_bytes();
+        let name = spec.name().as_bytes();
         let mut slot = slot_of(name);
         while at(&index, slot) != 0 {
             // Duplicate names would make lookup ambiguous.
@@ -513,7 +541,7 @@ pub fn lookup(name: &str) -> Option<&'static Spec> {
     for _ in 0..SLOTS {
         let row = usize::from(*BY_NAME.get(slot)?).checked_sub(1)?;
         let spec = TABLE.get(row)?;
-        if spec.name == name {
+        if spec.name() == name {
             return Some(spec);
         }
         slot = (slot + 1) % SLOTS;
@@ -529,7 +557,7 @@ impl CommandId {
 
     /// The wire name.
     pub fn name(self) -> &'static str {
-        self.spec().name
+        self.spec().name()
     }
 
     /// Where the specification lists it.

@@ -245,13 +245,34 @@ impl<S: Slots> Throttle<S> {
     /// locked out, a wrong one would find a slot, and the budget is not
     /// spent.
     pub fn admits(&self, peer: &Peer, now: i64) -> bool {
-        let budget = self.full_at.max(now).saturating_sub(now) <= i64::from(self.burst_ms);
-        budget
-            && match self.place(&key(peer), now) {
-                Place::Own(i) => now >= self.slot(i).locked_until,
-                Place::New(_) => true,
-                Place::Full => false,
-            }
+        self.wait(peer, now).is_none()
+    }
+
+    /// How long, in milliseconds from `now`, until a password from `peer`
+    /// may be checked (`None`: now): until its lockout ends, a slot for it
+    /// frees, and the budget holds a check again, whichever is last. Other
+    /// clients' wrong passwords meanwhile may make it longer.
+    pub fn wait(&self, peer: &Peer, now: i64) -> Option<u32> {
+        let place = match self.place(&key(peer), now) {
+            Place::Own(i) => self.slot(i).locked_until,
+            Place::New(_) => now,
+            Place::Full => self.first_spent(),
+        };
+        let until = place.max(self.full_at.saturating_sub(i64::from(self.burst_ms)));
+        let ms = until.wrapping_sub(now);
+        (ms > 0).then(|| u32::try_from(ms).unwrap_or(u32::MAX))
+    }
+
+    /// When the first record becomes [`Slot::spent`], so that a new client
+    /// finds a slot (the table is full of records that still matter, each
+    /// of them touched in the past: no sum here overflows).
+    fn first_spent(&self) -> i64 {
+        let base = i64::from(self.base_ms);
+        let mut first = i64::MAX;
+        for s in self.slots.as_ref() {
+            first = first.min(s.locked_until.max(s.touched.wrapping_add(base)));
+        }
+        first
     }
 
     /// Counts a checked wrong password from `peer`: it spends the budget,

@@ -48,7 +48,7 @@ fn run(spec: &Spec, who: Who, armed: bool, locked: bool) -> (Seen, Vec<CommandId
         CommandId::Login => Some("pw".to_string()),
         _ => valid_args(spec.grammar).remove(0),
     };
-    let seen = send(&mut s, &mut sess, &frame(spec.name, &args));
+    let seen = send(&mut s, &mut sess, &frame(spec.name(), &args));
     (seen, s.backend().executed.clone())
 }
 
@@ -75,7 +75,7 @@ fn the_gate_matrix_holds_for_every_command() {
             for armed in [false, true] {
                 for locked in [false, true] {
                     let (seen, executed) = run(spec, who, armed, locked);
-                    let case = format!("{} as {who:?}, armed={armed}, locked={locked}", spec.name);
+                    let case = format!("{} as {who:?}, armed={armed}, locked={locked}", spec.name());
                     assert_eq!(seen.cmd(), i64::from(u8::from(spec.id)), "{case}");
                     match expected(spec, who, armed, locked) {
                         Err(msg) => {
@@ -257,20 +257,43 @@ fn passwd_changes_the_vehicle_password_for_every_new_session() {
 }
 
 #[test]
-fn passwd_refuses_the_special_values_and_bad_passwords() {
+fn passwd_refuses_the_special_values_and_bad_passwords_saying_why() {
     let mut s = server(Some("pw"));
     let mut sess = Session::new();
     send(&mut s, &mut sess, "login pw");
-    for f in ["passwd 1025", "passwd 0315", "passwd two words", "passwd"] {
+    let special = "Invalid arguments: the admin and logout values cannot be passwords";
+    let rules = "Invalid arguments, usage: passwd new_password";
+    for (f, msg) in [
+        ("passwd 1025", special),
+        ("passwd 0315", special),
+        ("passwd two words", rules),
+        ("passwd", "Invalid arguments, usage: passwd new_password"),
+    ] {
+        let r = send(&mut s, &mut sess, f);
+        assert_eq!((r.ret(), r.msg()), (-2, msg), "{f}");
+    }
+    assert_eq!(s.auth().password(), Some("pw"));
+    assert_eq!(s.backend().saved_password, None, "nothing persisted");
+}
+
+#[test]
+fn passwd_refuses_configured_special_values_without_saying_which() {
+    let auth = lluav_core::Auth::with_specials(Some("pw"), "root!", "bye!").unwrap();
+    let mut s = lluav_core::Server::new(MockVehicle::default(), clock as fn() -> i64, auth);
+    let mut sess = Session::new();
+    send(&mut s, &mut sess, "login pw");
+    for f in ["passwd root!", "passwd bye!"] {
         let r = send(&mut s, &mut sess, f);
         assert_eq!(
             (r.ret(), r.msg()),
-            (-2, "Invalid arguments, usage: passwd new_password"),
+            (
+                -2,
+                "Invalid arguments: the admin and logout values cannot be passwords"
+            ),
             "{f}"
         );
     }
     assert_eq!(s.auth().password(), Some("pw"));
-    assert_eq!(s.backend().saved_password, None, "nothing persisted");
 }
 
 #[test]

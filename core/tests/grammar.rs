@@ -4,11 +4,12 @@
 mod common;
 
 use common::*;
-use lluav_core::{ArgError, Args, CommandId, Grammar, ParseError, Payload, Session, TABLE, parse};
+use lluav_core::{ArgError, Args, Bound, CommandId, Grammar, ParseError, Payload, Session, TABLE, parse};
 
 /// Invalid argument strings per grammar, with the typed reason.
 fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
     use ArgError::*;
+    use Bound::{Angle, Float, Integer, NonNegative, Pwm};
     let c = |v: &[(&str, ArgError)]| {
         v.iter()
             .map(|(a, e)| (Some(a.to_string()), *e))
@@ -32,14 +33,15 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
             ("-1", NotANumber),
             ("x", NotANumber),
             ("1.5", NotANumber),
-            ("4294967296", OutOfRange),
+            ("4294967296", OutOfRange(Integer)),
             ("+1", NotANumber),
             (" 1", NotANumber),
         ]),
         Grammar::Pwm => [
             missing,
             c(&[
-                ("65536", OutOfRange),
+                ("65536", OutOfRange(Pwm)),
+                ("99999999999", OutOfRange(Pwm)),
                 ("-1", NotANumber),
                 ("1e3", NotANumber),
                 ("+5", NotANumber),
@@ -49,12 +51,12 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
         Grammar::Amount => [
             missing,
             c(&[
-                ("-1", OutOfRange),
+                ("-1", OutOfRange(NonNegative)),
                 ("nan", NotANumber),
                 ("inf", NotANumber),
                 ("-Infinity", NotANumber),
-                ("1e39", NotFinite),
-                ("-1e39", NotFinite),
+                ("1e39", OutOfRange(Float)),
+                ("-1e39", OutOfRange(Float)),
                 ("abc", NotANumber),
                 ("0x10", NotANumber),
                 ("1,5", NotANumber),
@@ -63,16 +65,16 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 (" 1", NotANumber),
                 ("1 5", NotANumber),
                 ("1. 5", NotANumber),
-                ("-1e-50", OutOfRange),
+                ("-1e-50", OutOfRange(NonNegative)),
                 (
                     "-0.0000000000000000000000000000000000000000000000000001",
-                    OutOfRange,
+                    OutOfRange(NonNegative),
                 ),
             ]),
         ]
         .concat(),
         Grammar::OptAmount => c(&[
-            ("-0.5", OutOfRange),
+            ("-0.5", OutOfRange(NonNegative)),
             ("NaN", NotANumber),
             ("x", NotANumber),
             ("+2", NotANumber),
@@ -80,14 +82,14 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
         Grammar::Angle => [
             missing,
             c(&[
-                ("91", OutOfRange),
-                ("-90.5", OutOfRange),
+                ("91", OutOfRange(Angle)),
+                ("-90.5", OutOfRange(Angle)),
                 ("inf", NotANumber),
                 ("+45", NotANumber),
-                ("90.000001", OutOfRange),
-                ("-90.0000001", OutOfRange),
-                ("90.00000000000000000000000000001", OutOfRange),
-                ("9.00000001e1", OutOfRange),
+                ("90.000001", OutOfRange(Angle)),
+                ("-90.0000001", OutOfRange(Angle)),
+                ("90.00000000000000000000000000001", OutOfRange(Angle)),
+                ("9.00000001e1", OutOfRange(Angle)),
             ]),
         ]
         .concat(),
@@ -129,7 +131,26 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
             ]),
         ]
         .concat(),
-        Grammar::Text => [missing, c(&[("a\u{1}b", BadText), ("tab\there", BadText)])].concat(),
+        Grammar::Text => [
+            missing,
+            c(&[
+                ("a\u{1}b", BadText),
+                ("tab\there", BadText),
+                ("a\u{202E}b", BadText),
+                ("zero\u{200B}width", BadText),
+                (&"p".repeat(4097), OutOfRange(Bound::Text)),
+            ]),
+        ]
+        .concat(),
+        Grammar::TaskName => [
+            missing,
+            c(&[
+                ("a\u{202E}b", BadText),
+                ("bell\u{7}", BadText),
+                (&"t".repeat(257), OutOfRange(Bound::TaskName)),
+            ]),
+        ]
+        .concat(),
         Grammar::Secret => [missing, c(&[("bell\u{7}", BadText)])].concat(),
         Grammar::NewPassword => [
             missing,
@@ -137,6 +158,8 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 ("has space", BadPassword),
                 (&"x".repeat(33), BadPassword),
                 ("é", BadPassword),
+                ("1025", SpecialPassword),
+                ("0315", SpecialPassword),
             ]),
         ]
         .concat(),
@@ -156,6 +179,7 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
                 ("name:", Missing),
                 (":v", Malformed),
                 ("a b:1", Malformed),
+                ("takeoff_alt:2\u{202E}", BadText),
             ]),
         ]
         .concat(),
@@ -185,7 +209,7 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
             c(&[
                 ("1:2", Malformed),
                 ("1:2:inf", NotANumber),
-                ("1:2:1e40", NotFinite),
+                ("1:2:1e40", OutOfRange(Float)),
                 ("1:2:3:4", Malformed),
                 ("+1:0:0", NotANumber),
             ]),
@@ -278,7 +302,7 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
 fn every_command_accepts_its_valid_forms() {
     for spec in &TABLE {
         for args in valid_args(spec.grammar) {
-            let f = frame(spec.name, &args);
+            let f = frame(spec.name(), &args);
             let cmd = parse(&f).unwrap_or_else(|e| panic!("{f:?} should parse: {e:?}"));
             assert_eq!(cmd.id(), spec.id);
             assert_eq!(cmd.args().grammar(), spec.grammar);
@@ -290,7 +314,7 @@ fn every_command_accepts_its_valid_forms() {
 fn every_command_refuses_its_invalid_forms_with_a_typed_reason() {
     for spec in &TABLE {
         for (args, why) in invalid(spec.grammar) {
-            let f = frame(spec.name, &args);
+            let f = frame(spec.name(), &args);
             assert_eq!(parse(&f), Err(ParseError::InvalidArgs(spec.id, why)), "{f:?}");
         }
     }
@@ -303,8 +327,8 @@ fn invalid_arguments_get_ret_minus_2_and_the_usage_line_or_their_reason() {
     assert_eq!(send(&mut s, &mut admin, "login 1025").ret(), 0);
     for spec in &TABLE {
         for (args, why) in invalid(spec.grammar) {
-            let r = send(&mut s, &mut admin, &frame(spec.name, &args));
-            assert_eq!(r.ret(), -2, "{}", spec.name);
+            let r = send(&mut s, &mut admin, &frame(spec.name(), &args));
+            assert_eq!(r.ret(), -2, "{}", spec.name());
             assert_eq!(r.cmd(), i64::from(u8::from(spec.id)));
             let msg = match why.reason() {
                 Some(reason) => format!("Invalid arguments: {reason}"),
@@ -471,11 +495,19 @@ fn hand_built_commands_obey_the_same_number_and_ground_rules() {
     assert!(Command::new(CommandId::SetSpNed, Args::Setpoint(up)).is_ok());
     assert_eq!(
         Command::new(CommandId::ApronVol, Args::Amount(Number::from(-0.5))),
-        Err(ArgError::OutOfRange)
+        Err(ArgError::OutOfRange(Bound::NonNegative))
     );
     assert_eq!(
         Command::new(CommandId::Ara8Pitch, Args::Angle(90.5)),
-        Err(ArgError::OutOfRange)
+        Err(ArgError::OutOfRange(Bound::Angle))
+    );
+    assert_eq!(
+        Command::new(CommandId::SetTaskname, Args::TaskName("a\u{202E}b")),
+        Err(ArgError::BadText)
+    );
+    assert_eq!(
+        Command::new(CommandId::Passwd, Args::NewPassword("1025")),
+        Err(ArgError::SpecialPassword)
     );
     // A number parsed from a frame keeps its text, so that it encodes as
     // sent and a backend compares its range with what the client meant.
@@ -502,4 +534,27 @@ fn names_refuse_exactly_separators_and_unicode_control_and_format_characters() {
         refused += usize::from(expected);
     }
     assert!(refused > 65 + 150, "{refused}");
+}
+
+#[test]
+fn length_refusals_name_the_limits_the_grammar_enforces() {
+    use lluav_core::parse::{MAX_TASK_NAME_LEN, MAX_TEXT_LEN};
+    assert!(Bound::Text.reason().contains(&format!(" {MAX_TEXT_LEN} bytes")));
+    assert!(
+        Bound::TaskName
+            .reason()
+            .contains(&format!(" {MAX_TASK_NAME_LEN} bytes"))
+    );
+    for bound in [
+        Bound::Angle,
+        Bound::NonNegative,
+        Bound::Pwm,
+        Bound::Integer,
+        Bound::Float,
+        Bound::Text,
+        Bound::TaskName,
+    ] {
+        assert!(!bound.reason().is_empty(), "{bound:?}");
+        assert_eq!(ArgError::OutOfRange(bound).reason(), Some(bound.reason()));
+    }
 }

@@ -50,6 +50,7 @@ fn the_rfc_example_is_an_upgrade_with_its_key_host_and_origin() {
     assert_eq!(
         parsed(GOOD),
         Ok(Request::Upgrade(Upgrade {
+            target: "/chat",
             key: b"dGhlIHNhbXBsZSBub25jZQ==",
             host: "x",
             origin: None,

@@ -26,6 +26,7 @@ enum Owned {
     OptName(Option<String>),
     Path(String),
     Text(String),
+    TaskName(String),
     Secret(String),
     NewPassword(String),
     ParamName(String),
@@ -54,6 +55,7 @@ impl Owned {
             Owned::OptName(s) => Args::OptName(s.as_deref()),
             Owned::Path(s) => Args::Path(s),
             Owned::Text(s) => Args::Text(s),
+            Owned::TaskName(s) => Args::TaskName(s),
             Owned::Secret(s) => Args::Secret(s),
             Owned::NewPassword(s) => Args::NewPassword(s),
             Owned::ParamName(s) => Args::ParamName(s),
@@ -161,8 +163,12 @@ fn owned_args(g: Grammar) -> BoxedStrategy<Owned> {
         Grammar::OptName => prop::option::of(NAME).prop_map(Owned::OptName).boxed(),
         Grammar::Path => path().prop_map(Owned::Path).boxed(),
         Grammar::Text => TEXT.prop_map(Owned::Text).boxed(),
+        Grammar::TaskName => TEXT.prop_map(Owned::TaskName).boxed(),
         Grammar::Secret => TEXT.prop_map(Owned::Secret).boxed(),
-        Grammar::NewPassword => "[!-~]{1,32}".prop_map(Owned::NewPassword).boxed(),
+        Grammar::NewPassword => "[!-~]{1,32}"
+            .prop_filter("not a special login value", |p| p != "1025" && p != "0315")
+            .prop_map(Owned::NewPassword)
+            .boxed(),
         Grammar::ParamName => "[A-Za-z0-9_.-]{1,64}".prop_map(Owned::ParamName).boxed(),
         Grammar::SetParam => ("[A-Za-z0-9_.-]{1,64}", TEXT)
             .prop_map(|(n, v)| Owned::SetParam(n, v))
@@ -234,7 +240,7 @@ proptest! {
     fn every_generated_command_round_trips_through_its_text((row, owned) in any_command()) {
         let spec = &TABLE[row];
         let cmd = Command::new(spec.id, owned.args())
-            .unwrap_or_else(|e| panic!("generator made an invalid {}: {e:?} {owned:?}", spec.name));
+            .unwrap_or_else(|e| panic!("generator made an invalid {}: {e:?} {owned:?}", spec.name()));
         let text = cmd.to_string();
         prop_assert_eq!(parse(&text), Ok(cmd.clone()), "text: {:?}", text);
         let mut small: heapless::String<8192> = heapless::String::new();

@@ -50,7 +50,10 @@ impl Backend for Echo {
                     .str("ctl", "\u{8}\u{c}\u{1f}\n\t\r\0")
                     .f32("nan", f32::NAN)
                     .f64("big", 1e300)
-                    .f64("tiny", -2.5e-9);
+                    .f64("tiny", -2.5e-9)
+                    .f64("small", 2.5e-6)
+                    .f32("noise", 3.330_669e-16)
+                    .f32("edge", -1e-6);
                 o.array("list", |a| {
                     a.u64(u64::MAX)
                         .i64(i64::MIN)
@@ -100,7 +103,11 @@ fn strings_keys_and_numbers_are_escaped_into_valid_json() {
     assert_eq!(v["nested"]["k\"ey"], "v\\al");
     assert_eq!(v["nested"]["nan"], serde_json::Value::Null);
     assert_eq!(v["nested"]["big"], 1e300);
-    assert_eq!(v["nested"]["tiny"], -2.5e-9);
+    // No float noise: within 1e-6 of zero is 0 (DESIGN.md).
+    assert_eq!(v["nested"]["tiny"], 0.0);
+    assert_eq!(v["nested"]["noise"], 0.0);
+    assert_eq!(v["nested"]["edge"], 0.0);
+    assert_eq!(v["nested"]["small"], 2.5e-6);
     assert_eq!(
         v["nested"]["list"],
         serde_json::json!([u64::MAX, i64::MIN, true, null, "\u{7f}\u{2028}", {"deep": 1}, []])
@@ -241,7 +248,7 @@ fn help_lists_every_command_of_the_table() {
         .iter()
         .map(|v| v.as_str().unwrap())
         .collect();
-    let table: Vec<&str> = lluav_core::TABLE.iter().map(|s| s.name).collect();
+    let table: Vec<&str> = lluav_core::TABLE.iter().map(|s| s.name()).collect();
     assert_eq!(names, table);
 }
 

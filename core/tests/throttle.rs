@@ -65,17 +65,28 @@ impl Rig {
     }
 
     fn login_on(&mut self, session: &mut Session, password: &str) -> (i64, String) {
+        let v = self.login_answer(session, password);
+        (
+            v["ret"].as_i64().unwrap(),
+            v["msg"].as_str().unwrap_or("").to_owned(),
+        )
+    }
+
+    /// The whole answer to one login.
+    fn login_answer(&mut self, session: &mut Session, password: &str) -> serde_json::Value {
         let frame = format!("login {password}");
         let mut out = vec![0u8; 4096];
         let outcome = self
             .server
             .handle(session, Message::Text(frame.as_bytes()), &mut out);
-        let reply = outcome.reply().expect("login is always answered");
-        let v = checked_json(reply);
-        (
-            v["ret"].as_i64().unwrap(),
-            v["msg"].as_str().unwrap_or("").to_owned(),
-        )
+        checked_json(outcome.reply().expect("login is always answered"))
+    }
+
+    /// `retry_after_s` of a login from `peer` on a connection of its own
+    /// (`None` when the answer has none).
+    fn retry_after(&mut self, peer: impl Into<Who>, password: &str) -> Option<u64> {
+        let mut session = self.open(peer);
+        self.login_answer(&mut session, password)["retry_after_s"].as_u64()
     }
 
     /// Five wrong passwords from `peer`, each on a new connection.
@@ -128,6 +139,81 @@ fn a_locked_out_address_is_refused_without_checking_the_password() {
     let mut out = vec![0u8; 4096];
     let outcome = rig.server.handle(&mut session, Message::Text(b"state"), &mut out);
     assert_eq!(checked_json(outcome.reply().unwrap())["msg"], "Login first!");
+}
+
+#[test]
+fn a_login_refused_by_the_lockout_says_when_to_retry() {
+    let mut rig = Rig::new();
+    rig.guess_five_times(ATTACKER);
+    let mut session = rig.open(ATTACKER);
+    let v = rig.login_answer(&mut session, "pw");
+    assert_eq!(
+        (v["ret"].as_i64(), v["msg"].as_str()),
+        (Some(-1), Some(THROTTLED))
+    );
+    assert_eq!(v["retry_after_s"], 30, "{v}");
+    // Whole in the smallest buffer every error fits.
+    let mut small = vec![0u8; lluav_core::MIN_RESPONSE_CAPACITY];
+    let outcome = rig
+        .server
+        .handle(&mut session, Message::Text(b"login pw"), &mut small);
+    assert_eq!(
+        checked_json(outcome.reply().expect("answered"))["retry_after_s"],
+        30
+    );
+    rig.advance(10_000);
+    assert_eq!(rig.retry_after(ATTACKER, "pw"), Some(20));
+    rig.advance(19_500);
+    assert_eq!(
+        rig.retry_after(ATTACKER, "pw"),
+        Some(1),
+        "whole seconds, rounded up"
+    );
+    rig.advance(500);
+    assert_eq!(
+        rig.login(ATTACKER, "guess"),
+        (-1, WRONG.into()),
+        "checked again, as promised"
+    );
+    assert_eq!(
+        rig.retry_after(OPERATOR, "guess"),
+        None,
+        "no retry_after_s unless throttled"
+    );
+    for _ in 1..MAX_WRONG_PASSWORDS {
+        rig.login(ATTACKER, "guess");
+    }
+    assert_eq!(
+        rig.retry_after(ATTACKER, "pw"),
+        Some(60),
+        "the second lockout doubles"
+    );
+}
+
+#[test]
+fn a_login_refused_for_a_full_table_or_a_spent_budget_says_when_to_retry() {
+    let mut rig = Rig::new();
+    rig.guess_five_times(ATTACKER);
+    for i in 1..THROTTLE_CAPACITY {
+        rig.advance(1);
+        rig.login(Ipv4Addr::new(10, 0, 0, u8::try_from(i).unwrap()), "guess");
+    }
+    // Full: the first record that stops mattering is the attacker's, at
+    // the end of its lockout, 30 s after the first guess.
+    let elapsed = u32::try_from(THROTTLE_CAPACITY - 1).unwrap();
+    assert_eq!(rig.retry_after(OPERATOR, "pw"), Some(30));
+    rig.advance(BASE_MS - elapsed);
+    assert_eq!(rig.login(OPERATOR, "pw").0, 0, "room at the time it said");
+
+    const RATE: u16 = 4;
+    let mut rig = Rig::with(1024, RATE);
+    for i in 0..u32::from(RATE) {
+        rig.login(Ipv4Addr::new(10, 2, 0, i as u8), "guess");
+    }
+    // One check per 250 ms: a second at most, in whole seconds.
+    assert_eq!(rig.retry_after(OPERATOR, "pw"), Some(1));
+    rig.advance(250);
+    assert_eq!(rig.login(OPERATOR, "pw").0, 0);
 }
 
 #[test]

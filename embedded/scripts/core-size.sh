@@ -14,7 +14,7 @@ top=${1:-20}
 # shellcheck source=scripts/lib.sh
 . "$(dirname "$0")/../../scripts/lib.sh"
 core_elf=$(cd embedded/core-only && built_executable --release --features "${LLUAV_CORE_ONLY_FEATURES:-}")
-fw_elf=$(cd embedded/firmware && built_executable --release)
+fw_elf=$(cd embedded/boards/nucleo-h743zi && built_executable --release)
 
 sections() { size -A "$1" | awk '{ print $1, $2 }'; }
 { sections "$core_elf" | sed 's/^/core /'; sections "$fw_elf" | sed 's/^/fw /'; } | awk -v budget=$((32 * 1024)) '

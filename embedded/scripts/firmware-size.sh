@@ -8,7 +8,7 @@
 set -euo pipefail
 # shellcheck source=scripts/lib.sh
 . "$(dirname "$0")/../../scripts/lib.sh"
-cd embedded/firmware
+cd embedded/boards/nucleo-h743zi
 elf=$(built_executable --release)
 size -A "$elf" | awk -v flash_budget=$((96 * 1024)) -v ram_budget=$((48 * 1024)) '
   { s[$1] = $2 }

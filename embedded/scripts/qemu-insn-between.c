@@ -6,7 +6,10 @@
  *   qemu-system-arm ... -plugin ./qemu-insn-between.so,start=0x1234,stop=0x1240 -d plugin
  *
  * start/stop are the marker functions' entry addresses (the Thumb bit is
- * ignored). With profile=on it also prints, before each "insns" line, one
+ * ignored). With total=on (markers optional) it prints "total N", every
+ * instruction the guest executed, when QEMU exits (with profile=on, after
+ * the "tb" lines of the whole run): board-instructions.sh takes the
+ * difference of two runs of a whole firmware. With profile=on it also prints, before each "insns" line, one
  * "tb ADDR N" line per translation block that ran in the interval (N: the
  * instructions it executed there), for attributing the count to functions. Each translation block adds its instruction count to a counter
  * when it runs; a call ends a block, so a marker's entry always starts one.
@@ -30,6 +33,7 @@ enum qemu_plugin_cb_flags { QEMU_PLUGIN_CB_NO_REGS = 0 };
 enum qemu_plugin_op { QEMU_PLUGIN_INLINE_ADD_U64 = 0 };
 
 typedef void (*tb_trans_cb)(qemu_plugin_id_t id, struct qemu_plugin_tb *tb);
+typedef void (*udata_cb)(qemu_plugin_id_t id, void *userdata);
 typedef void (*vcpu_udata_cb)(unsigned int vcpu_index, void *userdata);
 
 void qemu_plugin_register_vcpu_tb_trans_cb(qemu_plugin_id_t id, tb_trans_cb cb);
@@ -40,6 +44,7 @@ void qemu_plugin_register_vcpu_tb_exec_inline(struct qemu_plugin_tb *tb, enum qe
 size_t qemu_plugin_tb_n_insns(const struct qemu_plugin_tb *tb);
 uint64_t qemu_plugin_tb_vaddr(const struct qemu_plugin_tb *tb);
 void qemu_plugin_outs(const char *string);
+void qemu_plugin_register_atexit_cb(qemu_plugin_id_t id, udata_cb cb, void *userdata);
 
 __attribute__((visibility("default"))) int qemu_plugin_version = 1;
 
@@ -48,6 +53,7 @@ static uint64_t executed;
 static uint64_t started;
 static uint64_t start_addr, stop_addr;
 static int profile;
+static int total;
 static int inside;
 
 /* Per translated block, for profile=on: a list, since one address can be
@@ -64,7 +70,7 @@ static void on_block(unsigned int vcpu, void *udata)
 {
     struct block *b = udata;
     (void)vcpu;
-    if (inside) {
+    if (inside || total) {
         b->executed += b->insns;
     }
 }
@@ -91,6 +97,21 @@ static void on_stop(unsigned int vcpu, void *udata)
         }
     }
     snprintf(line, sizeof line, "insns %" PRIu64 "\n", executed - started);
+    qemu_plugin_outs(line);
+}
+
+static void on_qemu_exit(qemu_plugin_id_t id, void *udata)
+{
+    char line[64];
+    (void)id;
+    (void)udata;
+    for (struct block *b = blocks; total && b != NULL; b = b->next) {
+        if (b->executed != 0) {
+            snprintf(line, sizeof line, "tb 0x%" PRIx64 " %" PRIu64 "\n", b->vaddr, b->executed);
+            qemu_plugin_outs(line);
+        }
+    }
+    snprintf(line, sizeof line, "total %" PRIu64 "\n", executed);
     qemu_plugin_outs(line);
 }
 
@@ -132,14 +153,19 @@ __attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t 
             stop_addr = strtoull(argv[i] + 5, NULL, 0) & ~1ull;
         } else if (strcmp(argv[i], "profile=on") == 0) {
             profile = 1;
+        } else if (strcmp(argv[i], "total=on") == 0) {
+            total = 1;
         } else {
             fprintf(stderr, "qemu-insn-between: unknown argument %s\n", argv[i]);
             return -1;
         }
     }
-    if (start_addr == 0 || stop_addr == 0) {
-        fprintf(stderr, "qemu-insn-between: needs start=ADDR,stop=ADDR\n");
+    if (!total && (start_addr == 0 || stop_addr == 0)) {
+        fprintf(stderr, "qemu-insn-between: needs start=ADDR,stop=ADDR or total=on\n");
         return -1;
+    }
+    if (total) {
+        qemu_plugin_register_atexit_cb(id, on_qemu_exit, NULL);
     }
     qemu_plugin_register_vcpu_tb_trans_cb(id, on_translate);
     return 0;

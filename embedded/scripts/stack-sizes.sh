@@ -6,7 +6,7 @@
 # in a task (e.g. a PacketQueue, seen at 19 KB) would show up here.
 # Usage: stack-sizes.sh [N]  (N largest frames, default 25; LIMIT env, default 8192)
 set -euo pipefail
-cd "$(dirname "$0")/../firmware"
+cd "$(dirname "$0")/../boards/nucleo-h743zi"
 top=${1:-25}
 limit=${LIMIT:-8192}
 rustup +nightly target add thumbv7em-none-eabihf >/dev/null

@@ -54,6 +54,8 @@ use lluav_core::{CloseCode, MIN_RESPONSE_CAPACITY};
 use crate::error::{Error, Rejection};
 use crate::log::debug;
 use crate::receive::{Event, Reader};
+#[cfg(feature = "streamed-echo")]
+use crate::send::write_text;
 use crate::send::{Outgoing, Sender, Sent, write_reply};
 use crate::service::{Handler, Service};
 use crate::transport::{self, Transport};
@@ -241,6 +243,16 @@ impl<'b> Connection<'b> {
     ) -> Result<(Option<u16>, bool), Error<T::Error>> {
         let reply = self.limits.reply;
         let message = self.reader.message(event);
+        // Behind a feature: an await point in this function costs every
+        // firmware the code of its state, taken or not (700 bytes).
+        #[cfg(feature = "streamed-echo")]
+        if S::ECHOES_TEXT
+            && matches!(event, Event::Message)
+            && let Ok(text) = message.text()
+        {
+            write_text(io, text.as_bytes()).await?;
+            return Ok((None, true));
+        }
         let mut waiting = None;
         let (sent, now) = loop {
             if !transport::reserve(io, header_len(reply) + reply).await? {

@@ -60,6 +60,7 @@ pub mod admission;
 pub mod board;
 pub mod connection;
 pub mod error;
+pub mod firmware;
 mod receive;
 mod send;
 mod serve;

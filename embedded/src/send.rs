@@ -233,6 +233,48 @@ pub(crate) fn write_reply(
     }
 }
 
+#[cfg(feature = "streamed-echo")]
+/// Sends `payload` as one text frame, copied into the transmit buffer in
+/// as many pieces as its free space takes: for an answer that already
+/// lies elsewhere (an echo, in the message buffer), which the transmit
+/// buffer then need not hold whole.
+pub(crate) async fn write_text<T: Transport>(io: &mut T, payload: &[u8]) -> Result<(), Error<T::Error>> {
+    let head = header_len(payload.len());
+    if !transport::reserve(io, head).await? {
+        return Err(Error::Buffers);
+    }
+    let mut framed = false;
+    transport::write(io, &mut |room| match room
+        .get_mut(..head)
+        .and_then(|out| write_header(out, Opcode::Text, payload.len()))
+    {
+        Some(n) => {
+            framed = true;
+            n
+        }
+        None => 0,
+    })
+    .await?;
+    if !framed {
+        return Err(Error::Framing);
+    }
+    let mut rest = payload;
+    while !rest.is_empty() {
+        let mut copied = 0;
+        transport::write(io, &mut |room| {
+            let n = room.len().min(rest.len());
+            if let (Some(to), Some(from)) = (room.get_mut(..n), rest.get(..n)) {
+                to.copy_from_slice(from);
+                copied = n;
+            }
+            copied
+        })
+        .await?;
+        rest = rest.get(copied..).unwrap_or_default();
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use lluav_core::websocket::handshake;

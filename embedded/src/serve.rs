@@ -1,6 +1,6 @@
 //! The accept loop of every slot, and a slot's buffers.
 
-use core::net::{IpAddr, SocketAddr};
+use core::net::{IpAddr, SocketAddrV4};
 
 use embassy_futures::join::join_array;
 use embassy_futures::select::{Either, select};
@@ -218,9 +218,9 @@ impl<const N: usize> Place<'_, N> {
             Ok(Err(e)) => return End::Done(Err(e)),
             Ok(Ok(())) => {}
         }
-        let remote = socket
-            .remote_endpoint()
-            .map(|e| SocketAddr::new(e.addr.into(), e.port));
+        let remote = socket.remote_endpoint().map(|e| match e.addr {
+            embassy_net::IpAddress::Ipv4(ip) => SocketAddrV4::new(ip, e.port),
+        });
         let session = session.insert(service.open(remote).await);
         let admitted = service.handler().await.admitted(session);
         self.table.opened(self.index, admitted);

@@ -350,13 +350,45 @@ fn mcu_sized_rings_carry_full_size_messages_and_replies() {
     }
 }
 
-/// The echo's reply capacity is the firmware's 2 KiB: a 2049-byte text
-/// fits the 4 KiB message buffer but not the reply, so the echo closes with
-/// 1009 (the protocol answers `Response too large` instead).
+/// The echo is sent straight from the message buffer, in as many pieces
+/// as the transmit ring takes: with the firmware's sizes, a 4 KiB message
+/// (twice the reply capacity, twice the transmit ring) comes back whole,
+/// to a peer that reads only when the connection waits for it too.
 #[test]
-fn a_reply_longer_than_the_reply_capacity_is_refused_by_the_service() {
-    let input = session(&[masked(true, op::TEXT, "n".repeat(2049).as_bytes())]);
-    assert_eq!(run_with(&input, 4096, MCU).ended, Ok(1009));
+fn an_echo_longer_than_the_transmit_ring_goes_out_whole_in_pieces() {
+    let long: Vec<u8> = (0..4096).map(|i| b'a' + (i % 26) as u8).collect();
+    let input = session(&[
+        masked(true, op::TEXT, &long),
+        masked(true, op::TEXT, b"next"),
+        masked(true, op::CLOSE, &1000u16.to_be_bytes()),
+    ]);
+    for piece in [1, 100, 4096] {
+        let r = run_with(&input, piece, MCU);
+        assert_eq!(r.ended, Ok(1000), "piece {piece}");
+        let expected = vec![
+            (op::TEXT, long.clone()),
+            (op::TEXT, b"next".to_vec()),
+            (op::CLOSE, 1000u16.to_be_bytes().to_vec()),
+        ];
+        assert_eq!(r.frames, expected, "piece {piece}");
+    }
+    let mut io = Pipe::new(&input, 100, MCU.rx, MCU.tx, 1 << 20).slow_peer();
+    let mut message = vec![0; MCU.message];
+    let limits = Limits {
+        reply: MCU.reply,
+        idle: None,
+        close: Duration::from_secs(1),
+    };
+    let mut conn = Connection::new(&mut message, limits);
+    let ended = block_on(async {
+        conn.accept(&mut io, &POLICY, |_| true).await?;
+        conn.run(&mut io, &Echo, &mut (), |_| {}).await
+    });
+    assert_eq!(ended, Ok(1000));
+    let output = io.output();
+    let wire = &output[output.windows(4).position(|w| w == b"\r\n\r\n").unwrap() + 4..];
+    let (frame, _) = parse_server_frame(wire).expect("the echo");
+    assert_eq!((frame.opcode, frame.payload), (op::TEXT, long));
 }
 
 /// embedded-websocket frames pongs and close frames into a contiguous run

@@ -4,9 +4,10 @@
 //! (`Known`), the mission upload state machine, and the command and
 //! mission protocols over a scripted link. Checked: nothing panics; what
 //! lluavd knows stays bounded; a packet that is not the followed
-//! autopilot's changes nothing; no packet starts or moves a setpoint
-//! stream; after the autopilot's heartbeat says disarmed, only the
-//! telemetry says whether the vehicle flies; the protocols send only
+//! autopilot's changes nothing (no failsafe starts or ends for it); no
+//! packet starts or moves a setpoint stream; after the autopilot's
+//! heartbeat says disarmed, only the telemetry says whether the vehicle
+//! flies, and no failsafe holds; the protocols send only
 //! what the command a client asked for sends (never a cancel, a clear or
 //! another command).
 //!
@@ -19,11 +20,11 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use lluav_core::{Pose, SessionId};
+use lluav_core::{Failsafe, Pose, SessionId};
 use lluav_host::mavlink::MavError;
 use lluav_host::mavlink::fuzzing::{
-    Effect, Heard, Incoming, Known, Next, Port, Receipt, SigningKey, Target, Timing, Upload, Wanted, command,
-    parse_datagram, upload_mission,
+    Asked, Effect, Heard, Incoming, Known, Next, Port, Receipt, SigningKey, Target, Timing, Upload, Wanted,
+    command, parse_datagram, upload_mission,
 };
 use mavlink::dialects::ardupilotmega::{
     MISSION_ITEM_INT_DATA, MavCmd, MavFrame, MavMessage, MavMissionResult, MavModeFlag,
@@ -126,6 +127,7 @@ struct Seen {
     setpoint: Option<Pose>,
     messages: u64,
     armed: bool,
+    failsafe: Option<Failsafe>,
 }
 
 fn seen(k: &Known) -> Seen {
@@ -135,6 +137,7 @@ fn seen(k: &Known) -> Seen {
         setpoint: k.setpoint(),
         messages: k.tel().total_messages(),
         armed: k.tel().armed(),
+        failsafe: k.failsafe(),
     }
 }
 
@@ -160,6 +163,7 @@ fn receive(k: &mut Known, from: Option<SocketAddr>, header: &MavHeader, msg: &Ma
             k.tel().airborne(),
             "a takeoff still counted after a disarmed heartbeat"
         );
+        assert_eq!(k.failsafe(), None, "a failsafe outlived a disarmed heartbeat");
     }
     assert!(k.footprint() <= FOOTPRINT_BOUND, "{} entries", k.footprint());
 }
@@ -208,10 +212,19 @@ pub fn run(data: &[u8]) {
             2 => now += i64::from(input.u16()) * 10,
             3 => k.stream(input.pose(), SessionId(u32::from(input.byte() % 4))),
             4 => k.release(SessionId(u32::from(input.byte() % 4))),
-            5 => match input.byte() % 3 {
+            5 => match input.byte() % 10 {
                 0 => k.took_off(now),
                 1 => k.disarmed(),
-                _ => k.landing(),
+                2 => k.landing(),
+                3 => k.ask(Asked::Takeoff, now),
+                4 => k.ask(Asked::Setpoints, now),
+                5 => k.ask(Asked::Mission, now),
+                6 => k.ask(Asked::Land, now),
+                7 => k.ask(Asked::Return, now),
+                8 => k.unask(Asked::Land),
+                _ => {
+                    k.override_failsafe();
+                }
             },
             6 => upload_steps(&mut input),
             _ => protocols(&mut input),

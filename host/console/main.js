@@ -5,7 +5,9 @@
 import { Client, commandName, defaultUrl } from './protocol.js';
 import { Plot } from './plot.js';
 import { byId, CommandLine, Confirm, Header, Log, Login, StatePanel } from './panels.js';
-import { altitudeOf, readCommands, readLogin, readMission, readState, setpointLine } from './vehicle.js';
+import {
+  altitudeOf, readCommands, readControlAnswer, readLogin, readMission, readState, setpointLine,
+} from './vehicle.js';
 
 /** `state` every 200 ms: the server never pushes. */
 const STATE_EVERY_MS = 200;
@@ -15,6 +17,8 @@ const MISSION_EVERY_MS = 2000;
 const RECONNECT_MS = [500, 1000, 2000, 4000];
 /** Commands after which the mission is read again at once. */
 const MISSION_COMMANDS = new Set(['mission', 'mw_exec', 'ai1_mission', 'test_listwp', 'plan', 'unlock_plan']);
+/** Commands whose answer says who is in control, `you` included. */
+const CONTROL_COMMANDS = new Set(['control', 'control_take', 'control_release']);
 
 class Console {
   constructor() {
@@ -38,6 +42,17 @@ class Console {
     this.missionSupported = true;
     this.lastPollError = '';
     this.failures = 0;
+    /** Who is in control (`{by, since}`), as the latest answer that says so had it. */
+    this.control = null;
+    /**
+     * Whether a label is this connection's session, as `control` answered
+     * it. `state` names the pilot but never says whether it is us, and a
+     * label belongs to one session for good (ids are never reused within a
+     * run), so one question per new label is enough.
+     */
+    this.verdicts = new Map();
+    /** The label a `control` request is out for, so that polls do not ask twice. */
+    this.askingAbout = null;
     this.header.endpoint.textContent = this.url;
     this.header.showRole(null);
     this.#wire();
@@ -55,6 +70,8 @@ class Console {
     byId('land').addEventListener('click', () => this.run('land'));
     byId('rtl').addEventListener('click', () => this.run('rtl'));
     byId('disarm').addEventListener('click', () => this.#disarm());
+    byId('take-control').addEventListener('click', () => this.#takeControl());
+    byId('release-control').addEventListener('click', () => this.run('control_release'));
     byId('fit').addEventListener('click', () => this.plot.fit());
     byId('zoom-in').addEventListener('click', () => this.plot.zoom(1.25));
     byId('zoom-out').addEventListener('click', () => this.plot.zoom(0.8));
@@ -69,6 +86,9 @@ class Console {
     const client = new Client(this.url);
     this.client = client;
     this.mustLogin = true;
+    // A new connection is a new session with a label of its own.
+    this.verdicts.clear();
+    this.askingAbout = null;
     this.header.connection('connecting');
     client.addEventListener('close', (ev) => this.#closed(client, ev.detail));
     client.addEventListener('stray', (ev) => this.log.note(`answer without a request: ${ev.detail}`, 'danger'));
@@ -204,6 +224,44 @@ class Console {
     this.plot.setSetpoint(s.setpoint);
     this.plot.setVehicle(s.position, s.yaw);
     byId('takeoff').disabled = s.airborne === true;
+    this.#controlSaid(s.control);
+  }
+
+  /**
+   * Takes who is in control from an answer that says so. Answers arrive in
+   * the order the server wrote them, so the latest one is the truth. When
+   * it names a pilot without saying whether that is this console (`state`
+   * never does), `control` is asked once for that label.
+   */
+  #controlSaid(control) {
+    this.control = control;
+    if (control !== null && control.you !== null) this.verdicts.set(control.by, control.you);
+    if (control !== null && !this.verdicts.has(control.by) && this.askingAbout !== control.by) {
+      this.#askControl(control.by);
+    }
+    this.#showAuthority();
+  }
+
+  #askControl(label) {
+    if (!this.client?.isOpen) return;
+    this.askingAbout = label;
+    this.client.request('control')
+      .then((ex) => {
+        if (ex.ok) this.#controlSaid(readControlAnswer(ex.answer));
+      })
+      .catch(() => {})
+      .finally(() => {
+        if (this.askingAbout === label) this.askingAbout = null;
+      });
+  }
+
+  #showAuthority() {
+    const by = this.control?.by;
+    this.panel.showAuthority({
+      failsafe: this.state?.failsafe ?? null,
+      control: this.control,
+      you: by === undefined ? null : this.verdicts.get(by) ?? null,
+    });
   }
 
   #pollMission() {
@@ -250,6 +308,7 @@ class Console {
     if (name === 'help' && ex.ok) this.commandLine.setCommands(readCommands(ex.answer));
     if (ex.needsLogin) this.#needLogin('Log in to send commands.');
     if (MISSION_COMMANDS.has(name)) this.#pollMission();
+    if (CONTROL_COMMANDS.has(name) && ex.ok) this.#controlSaid(readControlAnswer(ex.answer));
     return ex;
   }
 
@@ -262,6 +321,31 @@ class Console {
       danger: true,
     });
     if (sure) await this.run('takeoff');
+  }
+
+  /**
+   * `control_take`; while a failsafe holds (the vehicle acting on its own
+   * for safety) only `control_take failsafe` takes control, and it
+   * overrides the failsafe, so the person confirms that first. A failsafe
+   * this page has not seen yet gets the plain command, which the server
+   * refuses naming it: nothing is overridden without the question.
+   */
+  async #takeControl() {
+    const failsafe = this.state?.failsafe;
+    if (!failsafe || failsafe.overridden) {
+      await this.run('control_take');
+      return;
+    }
+    const sure = await this.confirm.ask({
+      title: 'Override the failsafe?',
+      text: `The vehicle is in failsafe (${failsafe.reason}): it acts on its own for safety and refuses motion `
+        + 'commands. Overriding gives this console control and lets its commands steer again, as a pilot '
+        + 'taking over with the sticks; until you send one the vehicle goes on as it is.',
+      command: 'control_take failsafe',
+      ok: 'Override',
+      danger: true,
+    });
+    if (sure) await this.run('control_take failsafe');
   }
 
   async #disarm() {

@@ -24,6 +24,11 @@ function fixed(value, digits = 1) {
   return Number(text) === 0 ? text.replace('-', '') : text;
 }
 
+/** A time in ms since the epoch as the local clock shows it, `14:03:07`. */
+function clock(ms) {
+  return new Date(ms).toTimeString().slice(0, 8);
+}
+
 function degrees(radians) {
   return radians === null ? '—' : `${Math.round((((radians * 180) / Math.PI) % 360 + 360) % 360)}°`;
 }
@@ -82,7 +87,8 @@ export class StatePanel {
   constructor() {
     for (const id of ['fsm', 'armed', 'lock', 'airborne', 'link', 'battery', 'battery-bar', 'pos-n',
       'pos-e', 'alt', 'vel-n', 'vel-e', 'vel-u', 'speed', 'yaw', 'sp-n', 'sp-e', 'sp-alt', 'wp-left',
-      'state-error']) {
+      'state-error', 'failsafe', 'failsafe-reason', 'failsafe-help', 'control', 'control-since', 'take-control',
+      'release-control']) {
       this[id.replace(/-(\w)/g, (_, c) => c.toUpperCase())] = byId(id);
     }
   }
@@ -114,6 +120,49 @@ export class StatePanel {
     this.spE.textContent = fixed(s.setpoint?.e, 2);
     this.spAlt.textContent = fixed(altitudeOf(s.setpoint), 2);
     this.wpLeft.textContent = s.waypointsLeft === null ? '—' : String(s.waypointsLeft);
+  }
+
+  /**
+   * Who flies and the failsafe: `failsafe` and `control` as vehicle.js
+   * reads them, `you` whether the pilot is this console (null: not known
+   * yet, or no pilot).
+   */
+  showAuthority({ failsafe, control, you }) {
+    this.failsafe.hidden = failsafe === null;
+    if (failsafe !== null) {
+      const overridden = failsafe.overridden ? 'true' : 'false';
+      // Rewritten only when it changes: it is an alert, read out when it does.
+      if (this.failsafeReason.textContent !== failsafe.reason || this.failsafe.dataset.overridden !== overridden) {
+        this.failsafeReason.textContent = failsafe.reason;
+        this.failsafe.dataset.overridden = overridden;
+        this.failsafeHelp.textContent = failsafe.overridden
+          ? 'Overridden by the pilot: motion commands steer again. A new failsafe still wins.'
+          : 'The vehicle acts on its own for safety and refuses motion commands. Land and Disarm still run; '
+            + 'Take control overrides it.';
+      }
+      tone(this.failsafe, failsafe.overridden ? 'warn' : 'danger');
+    }
+    const holds = failsafe !== null && !failsafe.overridden;
+    this.control.dataset.you = you === null ? '' : String(you);
+    if (control === null) {
+      this.control.textContent = 'free';
+      this.control.title = 'No one is in control: the first motion command takes it.';
+      this.controlSince.textContent = '';
+      tone(this.control, 'neutral');
+    } else {
+      this.control.textContent = you ? 'this console' : control.by;
+      this.control.title = you ? `This console (${control.by}) flies the vehicle.` : `${control.by} flies the vehicle.`;
+      this.controlSince.textContent = `since ${clock(control.since)}`;
+      tone(this.control, you ? 'good' : you === false ? 'warn' : 'neutral');
+    }
+    // Taking control is for when someone else (or no one) has it, and for
+    // overriding a failsafe, which even the pilot must do.
+    this.takeControl.hidden = you === true && !holds;
+    this.takeControl.classList.toggle('danger', holds);
+    this.takeControl.title = holds
+      ? 'Override the failsafe and take control (control_take failsafe; asks first)'
+      : 'Take control of the flight (control_take)';
+    this.releaseControl.hidden = you !== true;
   }
 
   /** A `state` request that failed: shown until the next good one. */

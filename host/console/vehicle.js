@@ -8,6 +8,13 @@
 // that is missing, null or of another type reads as null rather than
 // breaking the page. Coordinates are NED metres (x north, y east, z down),
 // angles radians.
+//
+// Flight authority (DESIGN.md): `state` names the failsafe (a reason, with
+// " (overridden)" once the session in control overrode it, or null) and who
+// is in control (`{by, since}` or null); `control`, `control_take` and
+// `control_release` answer `control` the same way, with `you` saying whether
+// it is the asking session. `state` never says `you`: the page learns its
+// own label from those answers.
 
 /** The member each fact is read from. */
 export const FIELDS = {
@@ -26,6 +33,11 @@ export const FIELDS = {
   link: 'link',
   linkAgeMs: 'heartbeat_age_ms',
   waypointsLeft: 'waypoints_left',
+  failsafe: 'failsafe',
+  control: 'control',
+  controlBy: 'by',
+  controlSince: 'since',
+  controlYou: 'you',
   north: 'x',
   east: 'y',
   down: 'z',
@@ -82,7 +94,40 @@ export function readState(answer) {
     link: text(pick(s, FIELDS.link)),
     linkAgeMs: number(pick(s, FIELDS.linkAgeMs)),
     waypointsLeft: number(pick(s, FIELDS.waypointsLeft)),
+    failsafe: readFailsafe(pick(s, FIELDS.failsafe)),
+    control: readControl(pick(s, FIELDS.control)),
   };
+}
+
+/** What the server appends to a failsafe's reason once it is overridden. */
+const OVERRIDDEN = ' (overridden)';
+
+/**
+ * `{reason, overridden}` from `state`'s failsafe (`"battery_low"`,
+ * `"battery_low (overridden)"`), or null when there is none.
+ */
+export function readFailsafe(value) {
+  const said = text(value);
+  if (said === null) return null;
+  const overridden = said.endsWith(OVERRIDDEN) && said.length > OVERRIDDEN.length;
+  return { reason: overridden ? said.slice(0, -OVERRIDDEN.length) : said, overridden };
+}
+
+/**
+ * `{by, since, you}` from a `control` member, or null when control is free
+ * (or the member is unusable). `you` is null where the answer does not say
+ * (`state`).
+ */
+export function readControl(value) {
+  const by = text(pick(value, FIELDS.controlBy));
+  const since = number(pick(value, FIELDS.controlSince));
+  if (by === null || since === null) return null;
+  return { by, since, you: bool(pick(value, FIELDS.controlYou)) };
+}
+
+/** Who is in control, from a `control`, `control_take` or `control_release` answer. */
+export function readControlAnswer(answer) {
+  return readControl(pick(answer, FIELDS.control));
 }
 
 /** The current mission from an `mw_list` answer: `{id, waypoints: [{id, n, e, d}]}`. */

@@ -12,7 +12,7 @@ use std::time::Duration;
 use clap::Parser;
 use serde::{Deserialize, Serialize};
 
-use crate::mavlink::{SigningKey, Wanted};
+use crate::mavlink::{Limits as FlightLimits, SigningKey, Wanted};
 use crate::net::{Limits, Policy};
 
 /// The default address: loopback only, the protocol's port.
@@ -54,6 +54,26 @@ pub struct Cli {
     /// drop every message from the autopilot not signed with it.
     #[arg(long, value_name = "FILE")]
     pub mavlink_signing_key: Option<PathBuf>,
+    /// The MAVLink vehicle's lowest target altitude above home, in metres
+    /// (0.2-10; the simulator's limits are its parameters). [default: 0.5]
+    #[arg(long, value_name = "M")]
+    pub min_alt: Option<f64>,
+    /// The MAVLink vehicle's highest target altitude above home, in metres
+    /// (1-500). [default: 120]
+    #[arg(long, value_name = "M")]
+    pub max_alt: Option<f64>,
+    /// The MAVLink vehicle's largest horizontal distance of a target from
+    /// home, in metres (1-10000). [default: 500]
+    #[arg(long, value_name = "M")]
+    pub geofence_radius: Option<f64>,
+    /// The MAVLink vehicle's takeoff altitude above home, in metres
+    /// (0.5-120; clipped into min_alt..max_alt). [default: 2.5]
+    #[arg(long, value_name = "M")]
+    pub takeoff_alt: Option<f64>,
+    /// Seconds without a request after which the session in control of
+    /// the MAVLink vehicle loses it (1-3600). [default: 30]
+    #[arg(long, value_name = "SECS")]
+    pub control_timeout: Option<u32>,
     /// Allow listening beyond loopback without a password.
     #[arg(long)]
     pub allow_no_password: bool,
@@ -147,6 +167,16 @@ pub struct FileConfig {
     pub mavlink_system: Option<SystemValue>,
     /// As `--mavlink-signing-key`.
     pub mavlink_signing_key: Option<PathBuf>,
+    /// As `--min-alt`, m.
+    pub min_alt: Option<f64>,
+    /// As `--max-alt`, m.
+    pub max_alt: Option<f64>,
+    /// As `--geofence-radius`, m.
+    pub geofence_radius: Option<f64>,
+    /// As `--takeoff-alt`, m.
+    pub takeoff_alt: Option<f64>,
+    /// As `--control-timeout`, in seconds.
+    pub control_timeout: Option<u32>,
     /// As `--allow-no-password`.
     pub allow_no_password: Option<bool>,
     /// As `--allow-default-admin`.
@@ -290,6 +320,8 @@ pub struct Settings {
     pub mavlink_system: Wanted,
     /// MAVLink 2 signing.
     pub mavlink_signing_key: Option<KeyFile>,
+    /// The MAVLink vehicle's limits (the simulator's are its parameters).
+    pub mavlink_limits: FlightLimits,
     /// Whether listening beyond loopback without a password is allowed.
     pub allow_no_password: bool,
     /// Whether listening beyond loopback with the public admin value is allowed.
@@ -333,6 +365,7 @@ impl Settings {
         let limits = limits(&cli, &file)?;
         let (login_lockout, login_rate, login_addresses) = login(&cli, &file)?;
         let (mavlink, mavlink_system, mavlink_signing_key) = mavlink(&mut cli, &mut file)?;
+        let mavlink_limits = flight_limits(&cli, &file)?;
         let uplink = uplink(cli.uplink, &mut file)?;
         let data_dir = match cli.data_dir.or(file.data_dir) {
             Some(dir) => dir,
@@ -376,6 +409,7 @@ impl Settings {
             mavlink,
             mavlink_system,
             mavlink_signing_key,
+            mavlink_limits,
             uplink,
         })
     }
@@ -409,6 +443,27 @@ fn mavlink(
         .transpose()
         .map_err(ConfigError::Mavlink)?;
     Ok((address, wanted, key))
+}
+
+/// The MAVLink vehicle's limits: flags over the file over the defaults,
+/// each in its range and `min_alt` below `max_alt`.
+fn flight_limits(cli: &Cli, file: &FileConfig) -> Result<FlightLimits, ConfigError> {
+    let d = FlightLimits::default();
+    let limits = FlightLimits {
+        min_alt: cli.min_alt.or(file.min_alt).unwrap_or(d.min_alt),
+        max_alt: cli.max_alt.or(file.max_alt).unwrap_or(d.max_alt),
+        geofence_radius: cli
+            .geofence_radius
+            .or(file.geofence_radius)
+            .unwrap_or(d.geofence_radius),
+        takeoff_alt: cli.takeoff_alt.or(file.takeoff_alt).unwrap_or(d.takeoff_alt),
+        control_timeout_s: cli
+            .control_timeout
+            .or(file.control_timeout)
+            .unwrap_or(d.control_timeout_s),
+    };
+    limits.check().map_err(ConfigError::Mavlink)?;
+    Ok(limits)
 }
 
 /// The login throttle (lockout, attempts per minute, addresses tracked):
@@ -694,6 +749,61 @@ mod tests {
             FileConfig::default(),
         );
         assert!(matches!(err, Err(ConfigError::Mavlink(e)) if e.contains("64 hex digits")));
+    }
+
+    #[test]
+    fn the_mavlink_vehicles_limits_come_from_the_flags_over_the_file_in_range() {
+        let s = Settings::merge(cli(&["--data-dir", "/tmp/x"]), FileConfig::default()).unwrap();
+        assert_eq!(s.mavlink_limits, FlightLimits::default());
+        assert_eq!(
+            (
+                s.mavlink_limits.min_alt,
+                s.mavlink_limits.max_alt,
+                s.mavlink_limits.geofence_radius
+            ),
+            (0.5, 120.0, 500.0)
+        );
+        assert_eq!(
+            (s.mavlink_limits.takeoff_alt, s.mavlink_limits.control_timeout_s),
+            (2.5, 30)
+        );
+        let file: FileConfig = toml::from_str(
+            "max_alt = 30.0\ngeofence_radius = 80.0\ntakeoff_alt = 5.0\ncontrol_timeout = 12\n",
+        )
+        .unwrap();
+        let s = Settings::merge(
+            cli(&["--data-dir", "/tmp/x", "--max-alt", "20", "--min-alt", "1"]),
+            file,
+        )
+        .unwrap();
+        let l = s.mavlink_limits;
+        assert_eq!((l.min_alt, l.max_alt, l.geofence_radius), (1.0, 20.0, 80.0));
+        assert_eq!((l.takeoff_alt, l.control_timeout_s), (5.0, 12));
+        // A takeoff altitude above max_alt is clipped when flown, not refused.
+        let file: FileConfig = toml::from_str("max_alt = 3.0\ntakeoff_alt = 5.0").unwrap();
+        assert!(Settings::merge(cli(&["--data-dir", "/tmp/x"]), file).is_ok());
+        for (bad, why) in [
+            ("min_alt = 0.1", "min_alt 0.1 out of range 0.2..10"),
+            ("max_alt = 501.0", "max_alt 501 out of range 1..500"),
+            (
+                "geofence_radius = 0.5",
+                "geofence_radius 0.5 out of range 1..10000",
+            ),
+            ("takeoff_alt = 121.0", "takeoff_alt 121 out of range 0.5..120"),
+            ("control_timeout = 0", "control_timeout 0 out of range 1..3600"),
+            ("max_alt = nan", "max_alt NaN out of range 1..500"),
+            (
+                "min_alt = 5.0\nmax_alt = 5.0",
+                "min_alt 5 m not below max_alt 5 m: no altitude would be left to fly",
+            ),
+        ] {
+            let file: FileConfig = toml::from_str(bad).unwrap();
+            let err = Settings::merge(cli(&["--data-dir", "/tmp/x"]), file);
+            assert!(
+                matches!(&err, Err(ConfigError::Mavlink(e)) if e == why),
+                "{bad}: {err:?}"
+            );
+        }
     }
 
     #[test]

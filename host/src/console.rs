@@ -243,7 +243,12 @@ mod tests {
     fn every_module_the_page_imports_is_served() {
         for asset in ASSETS.iter().filter(|a| a.path.ends_with(".js")) {
             let source = std::str::from_utf8(asset.body).expect("UTF-8");
-            for line in source.lines().filter(|l| l.starts_with("import ")) {
+            // `import ... from './x.js';`, also when the names span lines
+            // (`} from './x.js';` ends the statement).
+            let statements = source
+                .lines()
+                .filter(|l| (l.starts_with("import ") || l.starts_with("} from ")) && l.contains(" from "));
+            for line in statements {
                 let from = line.rsplit(['\'', '"']).nth(1).expect("a quoted module");
                 let path = from.trim_start_matches('.');
                 assert_eq!(

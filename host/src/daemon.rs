@@ -17,12 +17,13 @@ use lluav_core::throttle::{DEFAULT_MAX_LOCKOUT_MS, Slot, Throttle};
 use lluav_core::{Auth, AuthError, Clock, Failure, Message, Outcome, Peer, Server, Session, Via};
 use tokio::net::TcpListener;
 use tokio::runtime::{Handle, RuntimeFlavor};
-use tokio::sync::watch;
+use tokio::sync::{Notify, watch};
 use tracing::{error, info, warn};
 
 use crate::companion::{self, Companion, CompanionConfig, UplinkReport};
 use crate::config::{Settings, TlsFiles};
 use crate::console;
+use crate::events::{Bus, Event, Outbox};
 use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
 use crate::net::{self, Echo, Handler};
 use crate::notify::{self, Counted, Notifier, Status};
@@ -32,8 +33,7 @@ use crate::sim::{SimConfig, Simulator};
 use crate::uplink::{self, StatusCell, Uplink};
 use crate::vehicle::{Vehicle, Wait};
 
-/// How often the vehicle is advanced.
-pub const TICK: Duration = Duration::from_millis(50);
+pub use crate::vehicle::TICK;
 
 /// Attempts to take a contended vehicle lock before waiting for it off the
 /// worker: a few microseconds, several times a typical critical section.
@@ -69,16 +69,49 @@ fn lock<V>(server: &Mutex<OnboardServer<V>>) -> MutexGuard<'_, OnboardServer<V>>
     server.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
-/// The protocol handler: every message goes through [`Server::handle`].
+/// The protocol handler: every message goes through [`Server::handle`];
+/// what it changed goes out as events once its answer is written.
 pub struct Protocol<V> {
     server: Shared<V>,
+    outbox: Arc<Outbox>,
+    /// Wakes the ticker: a command may have set the vehicle moving.
+    wake: Arc<Notify>,
 }
 
 impl<V> Protocol<V> {
-    /// A handler serving `server`.
-    pub fn new(server: Shared<V>) -> Self {
-        Protocol { server }
+    /// A handler serving `server`, telling what happens through `outbox`
+    /// and waking the ticker through `wake` after every command.
+    pub fn new(server: Shared<V>, outbox: Arc<Outbox>, wake: Arc<Notify>) -> Self {
+        Protocol { server, outbox, wake }
     }
+}
+
+/// Who holds control, as far as telling its changes goes.
+fn pilot<V: Vehicle>(server: &OnboardServer<V>) -> Option<(lluav_core::SessionId, i64, String)> {
+    server
+        .control()
+        .pilot()
+        .map(|p| (p.session(), p.since_ms(), p.label().to_owned()))
+}
+
+/// Runs `f` on `server` and returns what it changed, as events: control
+/// passing (compared before and after) and what the vehicle told.
+pub(crate) fn observed<V: Vehicle, R>(
+    server: &mut OnboardServer<V>,
+    f: impl FnOnce(&mut OnboardServer<V>) -> R,
+) -> (R, Vec<Event>) {
+    let before = pilot(server);
+    let r = f(server);
+    let after = pilot(server);
+    let mut events = Vec::new();
+    if before.as_ref().map(|p| (p.0, p.1)) != after.as_ref().map(|p| (p.0, p.1)) {
+        events.push(Event::Control {
+            by: after.map(|p| p.2),
+            from: before.map(|p| p.2),
+        });
+    }
+    server.backend_mut().drain_events(&mut events);
+    (r, events)
 }
 
 impl<V: Vehicle> Protocol<V> {
@@ -116,7 +149,8 @@ impl<V: Vehicle> Handler for Protocol<V> {
     type Session = Session;
 
     fn session(&self, peer: SocketAddr) -> Session {
-        self.locked(|server| server.open_via(Some(peer.ip().into()), Via::WebSocket(peer)))
+        let addr = peer.to_string();
+        self.locked(|server| server.open_via(Some(peer.ip().into()), Via::WebSocket(&addr)))
     }
 
     async fn handle<'o>(
@@ -125,11 +159,19 @@ impl<V: Vehicle> Handler for Protocol<V> {
         message: Message<'o>,
         out: &'o mut [u8],
     ) -> Outcome<'o> {
+        let hold = Some(session.id().0);
         let (mut outcome, mut wait) = self.locked(|server| {
-            let outcome = server.handle(session, message, out);
-            let wait = take_wait(server, &outcome);
+            // A vehicle left alone while idle is brought up to now first.
+            server.backend_mut().advance_to(Instant::now());
+            let ((outcome, wait), events) = observed(server, |server| {
+                let outcome = server.handle(session, message, out);
+                let wait = take_wait(server, &outcome);
+                (outcome, wait)
+            });
+            self.outbox.stage(hold, events, SystemClock.unix_ms());
             (outcome, wait)
         });
+        self.wake.notify_one();
         // The vehicle waits for something outside (an autopilot's ACK):
         // wait with the lock released, so other sessions go on; the reply
         // goes back in and out as the response in one critical section.
@@ -139,9 +181,13 @@ impl<V: Vehicle> Handler for Protocol<V> {
                 None => Box::new(|_: &mut lluav_core::Fields<'_>| Err(Failure::unhandled())),
             };
             (outcome, wait) = self.locked(|server| {
-                server.backend_mut().arrive(ticket, reply);
-                let outcome = server.resume(session, buf);
-                let wait = take_wait(server, &outcome);
+                let ((outcome, wait), events) = observed(server, |server| {
+                    server.backend_mut().arrive(ticket, reply);
+                    let outcome = server.resume(session, buf);
+                    let wait = take_wait(server, &outcome);
+                    (outcome, wait)
+                });
+                self.outbox.stage(hold, events, SystemClock.unix_ms());
                 (outcome, wait)
             });
         }
@@ -152,8 +198,21 @@ impl<V: Vehicle> Handler for Protocol<V> {
         session.logged_in() || !self.locked(|server| server.auth().password_required())
     }
 
+    fn written(&self, session: &Session) {
+        self.outbox.release(session.id().0);
+    }
+
     fn closed(&self, session: Session) {
-        self.locked(|server| server.close(&session));
+        self.locked(|server| {
+            let ((), events) = observed(server, |server| server.close(&session));
+            self.outbox.stage(None, events, SystemClock.unix_ms());
+        });
+        // Answers it never wrote hold nothing back any longer.
+        self.outbox.release(session.id().0);
+    }
+
+    fn subscribe(&self) -> Option<crate::events::Subscriber> {
+        Some(self.outbox.bus().subscribe())
     }
 }
 
@@ -174,6 +233,10 @@ impl<V: Vehicle> uplink::Sessions for Protocol<V> {
 
     fn close(&self, session: Session) {
         Handler::closed(self, session);
+    }
+
+    fn answered(&self, session: lluav_core::SessionId) {
+        self.outbox.release(session.0);
     }
 
     fn state(&self, reporter: &mut Session, out: &mut [u8]) -> Option<String> {
@@ -294,6 +357,8 @@ pub struct Daemon<V> {
     mode: Mode<V>,
     notifier: Option<Notifier>,
     uplink: Option<(Uplink, Option<uplink::Store>)>,
+    /// What happens goes out through here: `/events`, the uplink.
+    outbox: Arc<Outbox>,
 }
 
 /// `lluavd`'s default backend: the companion computer and the simulated
@@ -359,6 +424,7 @@ impl Daemon<MavlinkVehicle> {
         let cfg = MavlinkConfig {
             wanted: settings.mavlink_system,
             signing: settings.mavlink_signing_key.as_ref().map(|k| k.key.clone()),
+            limits: settings.mavlink_limits,
             ..MavlinkConfig::new(address)
         };
         let vehicle =
@@ -407,6 +473,7 @@ impl<V: Vehicle> Daemon<V> {
             mode,
             notifier: None,
             uplink: None,
+            outbox: Arc::new(Outbox::new(Bus::fresh())),
         })
     }
 
@@ -462,8 +529,16 @@ impl<V: Vehicle> Daemon<V> {
             }
             Mode::Protocol(server) => Arc::new(Mutex::new(*server)),
         };
-        let ticker = tokio::spawn(tick(Arc::clone(&server)));
-        let handler = Arc::new(Counted::new(Protocol::new(Arc::clone(&server))));
+        let wake = Arc::new(Notify::new());
+        let ticker = tokio::spawn(tick(
+            Arc::clone(&server),
+            Arc::clone(&self.outbox),
+            Arc::clone(&wake),
+        ));
+        let protocol = |server: &Shared<V>| {
+            Protocol::new(Arc::clone(server), Arc::clone(&self.outbox), Arc::clone(&wake))
+        };
+        let handler = Arc::new(Counted::new(protocol(&server)));
         let sessions = handler.counter();
         let vehicle = Arc::clone(&server);
         let uplink_status = self.uplink.as_ref().map(|(u, _)| u.status().clone());
@@ -480,7 +555,7 @@ impl<V: Vehicle> Daemon<V> {
         let (stop, stopped) = watch::channel(false);
         let uplink = self.uplink.map(|(u, store)| {
             // Sessions of its own, not counted among the connections.
-            let protocol = Arc::new(Protocol::new(Arc::clone(&server)));
+            let protocol = Arc::new(protocol(&server));
             tokio::spawn(u.run(protocol, store, stopped))
         });
         let shutdown = async move {
@@ -590,16 +665,34 @@ fn report(status: &StatusCell) -> UplinkReport {
     UplinkReport::new(move || status.get().as_str())
 }
 
-/// Advances the vehicle every [`TICK`] by the wall time that really passed.
-async fn tick<V: Vehicle>(server: Shared<V>) {
-    let mut interval = tokio::time::interval(TICK);
-    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut last = Instant::now();
+/// Advances the vehicle while it does something (as often as it asks,
+/// [`Onboard::next_tick`]), tells what happened, and ends control that
+/// lapsed; sleeps while nothing goes on until a command wakes it (`wake`)
+/// or control is due to lapse. An idle, disarmed vehicle costs nothing.
+async fn tick<V: Vehicle>(server: Shared<V>, outbox: Arc<Outbox>, wake: Arc<Notify>) {
     loop {
-        interval.tick().await;
-        let now = Instant::now();
-        lock(&server).backend_mut().tick(now - last);
-        last = now;
+        let (next, lapse) = {
+            let mut server = lock(&server);
+            let ((), events) = observed(&mut server, |server| {
+                server.backend_mut().advance_to(Instant::now());
+                server.expire_control();
+            });
+            outbox.stage(None, events, SystemClock.unix_ms());
+            let lapse = server.control_lapses_at().map(|at| {
+                let ms = at.saturating_sub(SystemClock.unix_ms()).max(0);
+                Duration::from_millis(u64::try_from(ms).unwrap_or(0))
+            });
+            (server.backend().next_tick(), lapse)
+        };
+        match next.into_iter().chain(lapse).min() {
+            Some(wait) => {
+                tokio::select! {
+                    () = tokio::time::sleep(wait) => {}
+                    () = wake.notified() => {}
+                }
+            }
+            None => wake.notified().await,
+        }
     }
 }
 
@@ -687,7 +780,11 @@ mod tests {
                 Throttle::new(30_000, 900_000).with_table(vec![Slot::EMPTY; 4].into_boxed_slice()),
             ),
         );
-        let protocol = Arc::new(Protocol::new(Arc::new(Mutex::new(server))));
+        let protocol = Arc::new(Protocol::new(
+            Arc::new(Mutex::new(server)),
+            Arc::new(Outbox::new(Bus::fresh())),
+            Arc::new(Notify::new()),
+        ));
         let peer: SocketAddr = "127.0.0.1:9".parse().unwrap();
         let waiting = {
             let protocol = Arc::clone(&protocol);

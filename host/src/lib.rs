@@ -21,6 +21,8 @@
 //!   `--check-config`);
 //! - [`uplink`]: the protocol through an MQTT broker (vehicles behind NAT,
 //!   fleets), and the operator's side of it;
+//! - [`events`]: what happened, told as it happens (the `/events` stream,
+//!   the uplink's `events` topic);
 //! - [`terminal`]: text from the network made safe to print.
 
 #![warn(missing_docs)]
@@ -31,6 +33,7 @@ pub mod companion;
 pub mod config;
 pub mod console;
 pub mod daemon;
+pub mod events;
 pub mod files;
 pub mod journal;
 pub mod mavlink;

@@ -224,9 +224,17 @@ impl<H: Handler> Handler for Counted<H> {
         self.inner.handle(session, message, out)
     }
 
+    fn written(&self, session: &Self::Session) {
+        self.inner.written(session);
+    }
+
     fn closed(&self, session: Self::Session) {
         self.open.fetch_sub(1, Ordering::Relaxed);
         self.inner.closed(session);
+    }
+
+    fn subscribe(&self) -> Option<crate::events::Subscriber> {
+        self.inner.subscribe()
     }
 }
 

@@ -54,6 +54,14 @@ impl RecentLog {
         ring.lines.iter().skip(skip).cloned().collect()
     }
 
+    /// The last `n` lines, oldest first, and how many the buffer holds,
+    /// read at one moment.
+    pub fn recent_of(&self, n: usize) -> (Vec<String>, usize) {
+        let ring = self.lock();
+        let skip = ring.lines.len().saturating_sub(n);
+        (ring.lines.iter().skip(skip).cloned().collect(), ring.lines.len())
+    }
+
     /// How many lines the buffer holds now.
     pub fn len(&self) -> usize {
         self.lock().lines.len()

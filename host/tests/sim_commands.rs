@@ -31,6 +31,7 @@ fn sample_args(spec: &Spec) -> &'static str {
         Grammar::Path if spec.id == CommandId::SetMappath => "t1",
         Grammar::Path => "missions/m.json",
         Grammar::Text => "p1",
+        Grammar::TaskName => "survey east",
         Grammar::Secret | Grammar::NewPassword => "newpass1",
         Grammar::ParamName => "takeoff_alt",
         Grammar::SetParam => "takeoff_alt:3",
@@ -67,9 +68,9 @@ fn prepared(airborne: bool) -> Harness {
 fn frame(spec: &Spec) -> String {
     let args = sample_args(spec);
     if args.is_empty() {
-        spec.name.to_owned()
+        spec.name().to_owned()
     } else {
-        format!("{} {args}", spec.name)
+        format!("{} {args}", spec.name())
     }
 }
 
@@ -163,7 +164,21 @@ fn showmsg_returns_the_newest_log_lines_newest_first_as_many_as_fit() {
     }
     let r = h.ok("showmsg 2");
     assert_eq!(r["msgs"], serde_json::json!(["line 4", "line 3"]));
-    assert_eq!(r["truncated"], false);
+    assert_eq!(
+        (&r["truncated"], &r["total"]),
+        (&serde_json::json!(true), &serde_json::json!(5)),
+        "a count leaves lines out too"
+    );
+    let r = h.ok("showmsg 0");
+    assert_eq!(
+        (r["msgs"].as_array().map(Vec::len), &r["truncated"]),
+        (Some(0), &serde_json::json!(true))
+    );
+    let r = h.ok("showmsg 5");
+    assert_eq!(
+        (&r["truncated"], &r["total"]),
+        (&serde_json::json!(false), &serde_json::json!(5))
+    );
     let long = "x".repeat(10_000);
     for _ in 0..10 {
         h.log.push(long.clone());

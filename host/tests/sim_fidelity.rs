@@ -30,7 +30,7 @@ fn test_wp_and_relocate_pos_echo_the_numbers_sent() {
     let mut h = Harness::new(1.0);
     let r = h.ok("test_wp 0.1:0.2:0.3");
     assert_eq!(r["reachable"], false);
-    assert_eq!(r["reason"], "z = 0.3 is below the ground (NED: up is negative)");
+    assert_eq!(r["reason"], "altitude -0.3 m below min_alt 0.5 m");
     h.ok("set_maplocate 1");
     let r = h.ok("relocate_pos 0.1,0.2,0,0.7");
     assert_eq!(

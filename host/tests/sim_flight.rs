@@ -60,14 +60,59 @@ fn land_disarms_within_fifteen_seconds_even_from_high_up() {
 }
 
 #[test]
-fn disarm_disarms_at_once_even_in_flight() {
+fn a_vehicle_disarmed_in_the_air_falls_and_state_shows_the_fall() {
     let mut h = Harness::new(1.0);
+    h.ok("set_param takeoff_alt:8");
+    h.ok("set_param climb_speed:5");
     h.airborne();
+    // Hovering still: a vehicle disarmed while climbing rises on first.
+    h.run_for(1.0);
     let r = h.ok("disarm");
-    assert_eq!(r["armed"], false);
+    assert_eq!(
+        (r["armed"].as_bool(), r["fsm"].as_str()),
+        (Some(false), Some("falling"))
+    );
+    // Within the same millisecond it is still where it was.
     let s = h.state();
     assert_eq!(
-        (s["armed"].as_bool(), s["fsm"].as_str()),
+        (s["armed"].as_bool(), s["fsm"].as_str(), s["airborne"].as_bool()),
+        (Some(false), Some("falling"), Some(true))
+    );
+    assert!((altitude(&mut h) - 8.0).abs() < 0.1, "{s}");
+    // Half a second of free fall: about 1.2 m down, at about 4.9 m/s.
+    h.run_for(0.5);
+    let s = h.state();
+    let (alt, down) = (
+        s["altitude"].as_f64().unwrap(),
+        s["velocity"]["z"].as_f64().unwrap(),
+    );
+    assert!((6.5..7.0).contains(&alt), "{s}");
+    assert!((4.5..5.5).contains(&down), "{s}");
+    // Nothing flies a falling vehicle.
+    for frame in ["takeoff", "land", "rtl", "set_sp_ned 0:0:-5:0", "sleep"] {
+        assert_eq!(
+            h.fails(frame, -1),
+            "Vehicle is falling: it was disarmed in the air",
+            "{frame}"
+        );
+    }
+    // From 8 m: on the ground after about 1.28 s, at rest and disarmed.
+    let t = h.run_until_fsm("disarmed", 2.0);
+    assert!(0.5 + t > 1.2 && 0.5 + t < 1.4, "{t}");
+    let s = h.state();
+    assert_eq!((altitude(&mut h), s["velocity"]["z"].as_f64()), (0.0, Some(0.0)));
+    h.ok("takeoff");
+}
+
+#[test]
+fn disarm_on_the_ground_disarms_at_once() {
+    let mut h = Harness::new(1.0);
+    h.airborne();
+    h.ok("land");
+    h.run_until_fsm("armed", 20.0);
+    let r = h.ok("disarm");
+    assert_eq!(
+        (r["armed"].as_bool(), r["fsm"].as_str()),
         (Some(false), Some("disarmed"))
     );
 }

@@ -284,8 +284,14 @@ fn maps_are_files_that_can_be_listed_chosen_and_removed() {
         h.fails("set_mappath none", -2),
         "Invalid arguments: none does not exist"
     );
+    assert_eq!(
+        h.fails("rm_map site_a", -1),
+        "Map site_a is in use: set_mappath another map first"
+    );
+    assert!(h.dir.join("maps/site_a").exists(), "the map in use stays");
+    h.ok("set_mappath site_b");
     h.ok("rm_map site_a");
-    assert_eq!(h.ok("get_submap_info")["kfs"]["map_id"], serde_json::Value::Null);
+    assert_eq!(h.ok("get_submap_info")["kfs"]["map_id"], "site_b");
     assert_eq!(
         h.fails("rm_map site_a", -2),
         "Invalid arguments: site_a does not exist"
@@ -386,9 +392,15 @@ fn test_listwp_reports_each_waypoint_against_the_fence() {
             .unwrap()
             .contains("geofence_radius")
     );
-    let r = h.ok("test_wp 3:4:0");
+    let r = h.ok("test_wp 3:0:-4");
     assert_eq!(
         (r["reachable"].as_bool(), r["distance_m"].as_f64()),
         (Some(true), Some(5.0))
+    );
+    // A point on the ground is no target (min_alt).
+    let r = h.ok("test_wp 3:4:0");
+    assert_eq!(
+        (r["reachable"].as_bool(), r["reason"].as_str()),
+        (Some(false), Some("altitude 0 m below min_alt 0.5 m"))
     );
 }

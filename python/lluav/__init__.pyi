@@ -945,6 +945,30 @@ class Client:
         Returns the whole response object (``ret`` 0). Raises InvalidArguments
         before sending when the arguments do not fit, CommandError when ``ret``
         is not 0, ConnectionError when the connection fails."""
+    def control(self) -> dict[str, Any]:
+        """Who is in control of the flight.
+
+        Sends ``control`` (command id 100).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def control_take(self, failsafe: bool | None = None) -> dict[str, Any]:
+        """Take control of the flight (failsafe: override a failsafe).
+
+        Sends ``control_take [failsafe]`` (command id 101).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def control_release(self) -> dict[str, Any]:
+        """Release control of the flight.
+
+        Sends ``control_release`` (command id 102).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
 
 class AsyncClient:
     """A connection to an LLUAV server on asyncio.
@@ -1809,6 +1833,30 @@ class AsyncClient:
         Returns the whole response object (``ret`` 0). Raises InvalidArguments
         before sending when the arguments do not fit, CommandError when ``ret``
         is not 0, ConnectionError when the connection fails."""
+    async def control(self) -> dict[str, Any]:
+        """Who is in control of the flight.
+
+        Sends ``control`` (command id 100).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def control_take(self, failsafe: bool | None = None) -> dict[str, Any]:
+        """Take control of the flight (failsafe: override a failsafe).
+
+        Sends ``control_take [failsafe]`` (command id 101).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def control_release(self) -> dict[str, Any]:
+        """Release control of the flight.
+
+        Sends ``control_release`` (command id 102).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
 
 class FleetVehicle:
     """One vehicle reached through a :class:`Fleet`: every command is a
@@ -2649,6 +2697,30 @@ class FleetVehicle:
 
         Sends ``admin_unlock`` (command id 99).
         Gates: admin sessions only.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def control(self) -> dict[str, Any]:
+        """Who is in control of the flight.
+
+        Sends ``control`` (command id 100).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def control_take(self, failsafe: bool | None = None) -> dict[str, Any]:
+        """Take control of the flight (failsafe: override a failsafe).
+
+        Sends ``control_take [failsafe]`` (command id 101).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    def control_release(self) -> dict[str, Any]:
+        """Release control of the flight.
+
+        Sends ``control_release`` (command id 102).
 
         Returns the whole response object (``ret`` 0). Raises InvalidArguments
         before sending when the arguments do not fit, CommandError when ``ret``
@@ -3533,6 +3605,30 @@ class AsyncFleetVehicle:
 
         Sends ``admin_unlock`` (command id 99).
         Gates: admin sessions only.
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def control(self) -> dict[str, Any]:
+        """Who is in control of the flight.
+
+        Sends ``control`` (command id 100).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def control_take(self, failsafe: bool | None = None) -> dict[str, Any]:
+        """Take control of the flight (failsafe: override a failsafe).
+
+        Sends ``control_take [failsafe]`` (command id 101).
+
+        Returns the whole response object (``ret`` 0). Raises InvalidArguments
+        before sending when the arguments do not fit, CommandError when ``ret``
+        is not 0, ConnectionError when the connection fails."""
+    async def control_release(self) -> dict[str, Any]:
+        """Release control of the flight.
+
+        Sends ``control_release`` (command id 102).
 
         Returns the whole response object (``ret`` 0). Raises InvalidArguments
         before sending when the arguments do not fit, CommandError when ``ret``

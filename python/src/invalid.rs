@@ -22,7 +22,7 @@ impl Invalid {
     pub fn into_err(self, py: Python<'_>, spec: &Spec) -> PyErr {
         static CLASS: PyOnceLock<Py<PyType>> = PyOnceLock::new();
         match CLASS.import(py, "lluav._errors", "InvalidArguments") {
-            Ok(class) => PyErr::from_type(class.clone(), (spec.name, spec.usage, self.0)),
+            Ok(class) => PyErr::from_type(class.clone(), (spec.name(), spec.usage, self.0)),
             Err(e) => e,
         }
     }
@@ -44,14 +44,15 @@ fn reason(e: ArgError) -> &'static str {
         ArgError::Unexpected => "unexpected arguments",
         ArgError::Malformed => "malformed (see the usage line for the allowed characters and separators)",
         ArgError::NotANumber => "not a decimal number (digits with an optional '-', fraction and exponent)",
-        ArgError::NotFinite => "a number is not finite (NaN, infinite, or beyond the 32-bit float range)",
-        ArgError::OutOfRange => "a number is out of range",
+        ArgError::NotFinite => "a number is not finite (NaN or infinite)",
         ArgError::NotAFlag => "a flag must be 0 or 1",
         ArgError::UnsafePath => {
             "not a safe name or relative path (no leading '/' or '.', no '\\', control or format \
              characters, empty or space-padded components; a name is at most 128 bytes)"
         }
-        ArgError::BadText => "text may not hold control characters or end with a space",
+        ArgError::BadText => {
+            "text may not hold control or format characters (Unicode Cc, Cf) or end with a space"
+        }
         ArgError::TooMany => "a list holds too many items",
         ArgError::BadJson => "the JSON payload is not well-formed (or nests too deeply)",
         ArgError::BadPassword => "a password is 1-32 printable ASCII characters without spaces",

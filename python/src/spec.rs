@@ -63,7 +63,7 @@ impl PySpec {
     /// The name on the wire, and of the client method.
     #[getter]
     fn name(&self) -> &'static str {
-        self.spec.name
+        self.spec.name()
     }
 
     /// The stable id sent back as `cmd`.
@@ -124,7 +124,7 @@ impl PySpec {
     fn __repr__(&self) -> String {
         format!(
             "<Spec {} (id {}): {}>",
-            self.spec.name,
+            self.spec.name(),
             u8::from(self.spec.id),
             self.spec.usage
         )

@@ -81,6 +81,25 @@ def test_invalid_arguments_raise_invalid_arguments_with_the_usage_line(spec):
         assert isinstance(error, lluav.Error) and isinstance(error, ValueError)
 
 
+def test_refusals_say_why_as_the_server_does():
+    for value in ("1025", "0315"):
+        with pytest.raises(lluav.InvalidArguments) as caught:
+            lluav.encode("passwd", value)
+        assert caught.value.reason == "the admin and logout values cannot be passwords"
+    with pytest.raises(lluav.InvalidArguments) as caught:
+        lluav.encode("ara8_pitch", 90.5)
+    assert caught.value.reason == "angle out of range -90..90"
+    with pytest.raises(lluav.InvalidArguments) as caught:
+        lluav.parse("ara8_pitch 90.000001")
+    assert caught.value.reason == "angle out of range -90..90"
+    with pytest.raises(lluav.InvalidArguments) as caught:
+        lluav.encode("set_taskname", "a\u202eb")
+    assert "format characters" in caught.value.reason
+    with pytest.raises(lluav.InvalidArguments) as caught:
+        lluav.encode("plan", "p" * 4097)
+    assert caught.value.reason == "text longer than 4096 bytes"
+
+
 def test_parse_reads_frames_as_the_server_does():
     command = lluav.parse("set_sp_ned 0.1:0.2:-3.3:0.7\r\n")
     assert command.name == "set_sp_ned" and command.id == 23

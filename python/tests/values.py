@@ -26,7 +26,8 @@ VALID: dict[str, list[Any]] = {
     "Name": [("m1",)],
     "OptName": [(), ("restart.sh",)],
     "Path": [("maps/m1",)],
-    "Text": [("survey north field",)],
+    "Text": [("survey north field",), ("p" * 4096,)],
+    "TaskName": [("inspection east",), ("t" * 256,)],
     "Secret": [("1025",)],
     "NewPassword": [("n3w-Pass!",)],
     "ParamName": [("takeoff_alt",)],
@@ -38,6 +39,7 @@ VALID: dict[str, list[Any]] = {
     "Mission": [(1001, MISSION), (1002, MISSION["waypoints"]), (1003, "missions/m1.json")],
     "MwExec": [(1001, [1, 2]), (1001, (1,))],
     "Ai1Mission": [("task-1", "missions/m1.json")],
+    "Override": [(), (True,), (False,), {"failsafe": True}],
 }
 
 # Arguments the SDK refuses before sending, per grammar: wrong types,
@@ -65,9 +67,10 @@ INVALID: dict[str, list[Any]] = {
     ],
     "OptName": [("a/b",), ("..",), ("",), (1,)],
     "Path": [(), ("",), ("/etc/passwd",), ("../up",), ("a//b",), ("a/../b",), ("x" * 1025,), (1,)],
-    "Text": [(), ("",), ("trailing ",), ("line\nbreak",), (1,)],
+    "Text": [(), ("",), ("trailing ",), ("line\nbreak",), ("a\u202eb",), ("p" * 4097,), (1,)],
+    "TaskName": [(), ("",), ("a\u202eb",), ("zero\u200bwidth",), ("t" * 257,), (1,)],
     "Secret": [(), ("",), ("tab\t",), (1025,)],
-    "NewPassword": [(), ("",), ("has space",), ("x" * 33,), ("nön-ascii",), (1,)],
+    "NewPassword": [(), ("",), ("has space",), ("x" * 33,), ("nön-ascii",), ("1025",), ("0315",), (1,)],
     "ParamName": [(), ("",), ("bad name",), ("a:b",), ("x" * 65,), (1,)],
     "SetParam": [
         ("takeoff_alt",),
@@ -130,6 +133,7 @@ INVALID: dict[str, list[Any]] = {
         ("task-1", "../up.json"),
         ("", "m.json"),
     ],
+    "Override": [(2,), ("failsafe",), (1.0,), (True, True)],
 }
 
 

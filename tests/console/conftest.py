@@ -27,6 +27,17 @@ def daemon(binary):
 
 
 @pytest.fixture
+def real_time_daemon(binary):
+    """lluavd with a password, the simulator at real speed: a failsafe the
+    test starts lasts long enough to be seen and overridden on a slow
+    machine."""
+    d = Lluavd(binary, "--password", PASSWORD)
+    yield d
+    print(f"lluavd stderr:\n{d.stderr()[-4000:]}")  # shown when the test failed
+    d.stop()
+
+
+@pytest.fixture
 def open_daemon(binary):
     """lluavd without a password."""
     d = Lluavd(binary, "--sim-speed", "4")

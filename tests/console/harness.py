@@ -17,7 +17,9 @@ import socket
 import subprocess
 import tempfile
 import threading
+import time
 
+import websocket
 from selenium import webdriver
 from selenium.webdriver.chrome.options import Options
 from selenium.webdriver.chrome.service import Service
@@ -120,6 +122,37 @@ class Lluavd:
                 self.proc.wait()
         self._stderr.close()
         self._dir.cleanup()
+
+
+class Client:
+    """A plain WebSocket client of lluavd beside the page: another operator,
+    or a reader of the answers the page reads."""
+
+    def __init__(self, daemon: Lluavd):
+        self.ws = websocket.create_connection(daemon.ws_url, timeout=WAIT, suppress_origin=True)
+        #: What lluavd calls this session in `control` (`ws ADDR #N`) without its number.
+        self.label_prefix = "ws {}:{} #".format(*self.ws.sock.getsockname()[:2])
+
+    def ask(self, line: str) -> dict:
+        self.ws.send(line)
+        return json.loads(self.ws.recv())
+
+    def ok(self, line: str) -> dict:
+        answer = self.ask(line)
+        assert answer["ret"] == 0, (line, answer)
+        return answer
+
+    def state_when(self, what: str, ready) -> dict:
+        deadline = time.monotonic() + WAIT
+        while time.monotonic() < deadline:
+            answer = self.ok("state")
+            if ready(answer["state"]):
+                return answer
+            time.sleep(0.1)
+        raise AssertionError(f"never {what}: {answer}")
+
+    def close(self) -> None:
+        self.ws.close()
 
 
 def free_udp_port() -> int:

@@ -2,7 +2,9 @@
 
 A plain WebSocket client asks a real lluavd (the simulator, and the
 MAVLink backend in front of a pymavlink autopilot) for `login`, `help`,
-`state` and `mw_list` in a few situations, and compares each answer's shape
+`state`, `mw_list` and the flight authority's `control`, `control_take`
+and `control_release` in a few situations (control free, held by the
+asking session or another, a failsafe and its override), and compares each answer's shape
 (member names, JSON types, nulls) with the copy kept in answers/, which
 js/vehicle.test.mjs reads the page's parser against. A backend that renames,
 adds, drops or retypes a member fails here, until its new answer is
@@ -19,10 +21,8 @@ import sys
 import threading
 import time
 
-import websocket
-
 from conftest import PASSWORD
-from harness import ROOT, WAIT, Lluavd, free_udp_port
+from harness import ROOT, Client, Lluavd, free_udp_port
 
 sys.path.insert(0, str(ROOT / "tests" / "mavlink"))
 from fault_autopilot import FaultyAutopilot, mav  # noqa: E402
@@ -59,29 +59,6 @@ def check(name: str, answer: dict) -> None:
     )
 
 
-class Client:
-    def __init__(self, daemon: Lluavd):
-        self.ws = websocket.create_connection(daemon.ws_url, timeout=WAIT, suppress_origin=True)
-
-    def ask(self, line: str) -> dict:
-        self.ws.send(line)
-        return json.loads(self.ws.recv())
-
-    def ok(self, line: str) -> dict:
-        answer = self.ask(line)
-        assert answer["ret"] == 0, (line, answer)
-        return answer
-
-    def state_when(self, what: str, ready) -> dict:
-        deadline = time.monotonic() + WAIT
-        while time.monotonic() < deadline:
-            answer = self.ok("state")
-            if ready(answer["state"]):
-                return answer
-            time.sleep(0.1)
-        raise AssertionError(f"never {what}: {answer}")
-
-
 def test_the_simulator_sends_what_the_console_reads(binary):
     daemon = Lluavd(binary, "--password", PASSWORD, "--sim-speed", "4")
     try:
@@ -97,6 +74,30 @@ def test_the_simulator_sends_what_the_console_reads(binary):
         client.state_when("hovering", lambda s: s["fsm"] == "hover")
         client.ok("mw_exec 1001:1,2,3")
         check("sim-state-mission", client.state_when("flying the mission", lambda s: s["fsm"] == "mission"))
+        # The pilot as another session sees it, then taking over.
+        other = Client(daemon)
+        other.ok(f"login {PASSWORD}")
+        check("sim-control-other", other.ok("control"))
+        check("sim-control_take", other.ok("control_take"))
+        check("sim-control_release", other.ok("control_release"))
+        check("sim-control-free", other.ok("control"))
+    finally:
+        daemon.stop()
+
+
+def test_the_simulators_failsafe_as_the_console_reads_it(binary):
+    daemon = Lluavd(binary, "--password", PASSWORD, "--sim-speed", "4")
+    try:
+        client = Client(daemon)
+        client.ok(f"login {PASSWORD}")
+        # The battery runs low within seconds of the takeoff; the return
+        # climbs high, so that it is still on its way when overridden.
+        for param in ("battery_drain:100", "low_battery:90", "rtl_alt:120"):
+            client.ok(f"set_param {param}")
+        client.ok("takeoff")
+        check("sim-state-failsafe", client.state_when("in failsafe", lambda s: s["failsafe"] is not None))
+        check("sim-control_take-failsafe", client.ok("control_take failsafe"))
+        check("sim-state-overridden", client.state_when("overridden", lambda s: s["failsafe"].endswith(" (overridden)")))
     finally:
         daemon.stop()
 

@@ -8,6 +8,7 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
 
 from conftest import PASSWORD
+from harness import Client
 from page import distance
 
 
@@ -205,7 +206,7 @@ def test_tablet_and_laptop_widths_fit_without_sideways_scrolling(daemon, page):
                 "return document.documentElement.scrollWidth - document.documentElement.clientWidth"
             )
             assert overflow <= 0, f"{name}: {overflow} px wider than the window"
-            for part in ("plot", "takeoff", "land", "rtl", "disarm", "command", "fsm", "battery"):
+            for part in ("plot", "takeoff", "land", "rtl", "disarm", "command", "fsm", "battery", "control", "take-control"):
                 assert page.shown(part), f"{name}: {part} is not shown"
             assert page.el("plot").size["height"] >= 300, f"{name}: the plot is too small"
             page.screenshot(name)
@@ -315,3 +316,132 @@ def test_the_pages_policy_keeps_its_websocket_to_its_own_origin(daemon, open_dae
     assert any("Content Security Policy" in e["message"] for e in logs), logs
     page.driver.get("about:blank")
     page.driver.get_log("browser")
+
+
+def other_operator(daemon) -> Client:
+    """A second session beside the page, logged in as a person with a script would."""
+    other = Client(daemon)
+    other.ok(f"login {PASSWORD}")
+    return other
+
+
+def test_who_is_in_control_shows_and_take_control_takes_it_back(daemon, page):
+    other = other_operator(daemon)
+    try:
+        # The other operator keeps control however slowly this machine runs
+        # the test (30 s of silence would end it).
+        other.ok("set_param control_timeout:3600")
+        page.open(daemon)
+        page.login(PASSWORD)
+        page.wait(lambda: page.text("control") == "free", "control is free at first")
+        assert page.shown("take-control") and not page.shown("release-control")
+        page.click("takeoff")
+        page.confirm("takeoff")
+        # The takeoff gave this console control; the page finds out it is itself.
+        page.wait(lambda: page.text("control") == "this console", "the console shows it is in control")
+        assert page.el("control").get_attribute("data-tone") == "good"
+        assert page.shown("release-control") and not page.shown("take-control")
+        assert not page.shown("failsafe")
+        console = page.el("control").get_attribute("title").removeprefix("This console (").split(")")[0]
+        assert console.startswith("ws 127.0.0.1:") and not console.startswith(other.label_prefix), console
+        page.wait(lambda: page.text("fsm") == "HOVER", "the vehicle hovers after takeoff")
+        taken = other.ok("control_take")["control"]
+        label = taken["by"]
+        assert label.startswith(other.label_prefix) and taken["you"] is True, taken
+        page.wait(lambda: page.text("control") == label, "the console shows who took control")
+        assert page.el("control").get_attribute("data-you") == "false"
+        assert page.el("control").get_attribute("data-tone") == "warn"
+        assert page.text("control-since").startswith("since ")
+        assert page.shown("take-control") and not page.shown("release-control")
+        # A click on the map is a motion command: refused, saying who flies.
+        page.click_plot_at(3.0, 0.0)
+        page.confirm("set_sp_ned ")
+        page.wait(lambda: page.el("last-result").get_attribute("data-ret") == "-1", "the refusal is shown")
+        assert page.text("last-result").endswith(
+            f"failed or refused (-1) — Vehicle is flown by {label} since {taken['since']}: control_take to take over"
+        ), page.text("last-result")
+        page.screenshot("control-other")
+        page.click("take-control")
+        page.wait(lambda: page.log_entries()[0]["request"] == "control_take", "Take control sends control_take at once")
+        assert page.log_entries()[0]["status"] == "0 ok"
+        page.wait(lambda: page.text("control") == "this console", "the console is in control again")
+        assert other.ok("control")["control"]["you"] is False
+        refused = other.ask("set_sp_ned 1:0:-2:0")
+        assert refused["ret"] == -1 and refused["msg"].startswith(f"Vehicle is flown by {console} since "), refused
+        # The map steers again, from this console.
+        page.click_plot_at(3.0, 0.0)
+        page.confirm("set_sp_ned ")
+        page.wait(lambda: page.log_entries()[0]["request"].startswith("set_sp_ned"), "the setpoint is answered")
+        assert page.log_entries()[0]["status"] == "0 ok"
+        page.click("release-control")
+        page.wait(lambda: page.text("control") == "free", "Release leaves control free")
+        assert other.ok("control")["control"] is None
+        assert page.shown("take-control") and not page.shown("release-control")
+    finally:
+        other.close()
+
+
+def test_a_failsafe_shows_and_taking_control_overrides_it_after_a_question(real_time_daemon, page):
+    daemon = real_time_daemon
+    other = other_operator(daemon)
+    try:
+        # The battery runs low a few seconds after the takeoff; the return
+        # climbs high, so that it is still on its way when overridden.
+        for param in ("battery_drain:100", "low_battery:90", "rtl_alt:120"):
+            other.ok(f"set_param {param}")
+    finally:
+        other.close()
+    page.open(daemon)
+    page.login(PASSWORD)
+    page.wait(lambda: page.text("fsm") == "DISARMED", "the state shows disarmed")
+    assert not page.shown("failsafe")
+    page.click("takeoff")
+    page.confirm("takeoff")
+    # Not waiting for the hover: on a slow machine the page may not see it
+    # before the battery runs low.
+    page.wait(lambda: page.shown("failsafe"), "the failsafe shows")
+    assert page.text("failsafe-reason") == "battery_low"
+    failsafe = page.el("failsafe")
+    assert failsafe.get_attribute("data-tone") == "danger"
+    assert failsafe.get_attribute("data-overridden") == "false"
+    assert "OVERRIDDEN" not in failsafe.text.upper()
+    page.wait(lambda: page.text("fsm") == "RTL", "the vehicle returns on its own")
+    page.wait(lambda: page.text("control") == "this console", "the console still holds control")
+    assert page.shown("take-control"), "overriding is for the pilot too"
+    page.screenshot("failsafe")
+    # Steering is refused, saying why.
+    page.command("set_sp_ned 3:0:-3:0")
+    page.wait(lambda: page.log_entries()[0]["request"] == "set_sp_ned 3:0:-3:0", "the refusal is logged")
+    assert page.text("last-result").endswith(
+        "Vehicle is in failsafe (battery_low): land, rtl or control_take failsafe"
+    ), page.text("last-result")
+    # Take control asks first; Cancel sends nothing.
+    page.click("take-control")
+    page.wait(lambda: page.shown("confirm"), "overriding asks first")
+    assert page.text("confirm-command") == "control_take failsafe"
+    assert "battery_low" in page.text("confirm-text")
+    assert page.driver.switch_to.active_element.get_attribute("id") == "confirm-cancel", "it starts on Cancel"
+    page.screenshot("failsafe-confirm")
+    page.click("confirm-cancel")
+    page.wait(lambda: not page.shown("confirm"), "the dialog closes")
+    assert all(e["request"] != "control_take failsafe" for e in page.log_entries()), "cancel sends nothing"
+    assert page.el("failsafe").get_attribute("data-overridden") == "false"
+    page.click("take-control")
+    page.confirm("control_take failsafe")
+    page.wait(lambda: page.el("failsafe").get_attribute("data-overridden") == "true", "the override shows")
+    assert page.log_entries()[0]["request"] == "control_take failsafe"
+    assert page.log_entries()[0]["status"] == "0 ok"
+    assert page.text("failsafe-reason") == "battery_low" and "OVERRIDDEN" in page.text("failsafe").upper()
+    assert page.el("failsafe").get_attribute("data-tone") == "warn"
+    assert page.text("control") == "this console"
+    assert not page.shown("take-control") and page.shown("release-control")
+    checker = other_operator(daemon)
+    try:
+        assert checker.ok("state")["state"]["failsafe"] == "battery_low (overridden)"
+    finally:
+        checker.close()
+    page.screenshot("failsafe-overridden")
+    # The pilot steers again.
+    page.command("set_sp_ned 3:0:-3:0")
+    page.wait(lambda: page.log_entries()[0]["request"] == "set_sp_ned 3:0:-3:0", "the setpoint is answered")
+    assert page.log_entries()[0]["status"] == "0 ok"

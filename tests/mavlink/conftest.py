@@ -139,15 +139,17 @@ def daemon_factory(tmp_path):
 
 @pytest.fixture
 def vehicle(daemon_factory, udp_port):
-    """make(autopilot=PX4) -> (daemon, pymavlink autopilot, logged-in client),
-    the link up and home known."""
+    """make(autopilot=PX4, extra=(), **reports) -> (daemon, pymavlink
+    autopilot, logged-in client), the link up and home known; `extra` goes
+    to lluavd, `reports` to the autopilot (what it reports from the start,
+    its parameters, the modes it enters)."""
     from fault_autopilot import FaultyAutopilot, mav
 
     made = []
 
-    def make(autopilot=mav.MAV_AUTOPILOT_PX4):
-        daemon = daemon_factory(udp_port)
-        ap = FaultyAutopilot(udp_port, autopilot)
+    def make(autopilot=mav.MAV_AUTOPILOT_PX4, extra=(), **reports):
+        daemon = daemon_factory(udp_port, extra=extra)
+        ap = FaultyAutopilot(udp_port, autopilot, **reports)
         made.append(ap)
         client = daemon.client()
         wait_for("link up with home", lambda: (s := client.state())["link"] == "up" and s["home_global"])

@@ -1,7 +1,8 @@
 """A small autopilot made with pymavlink that misbehaves on purpose:
 delayed, refused or missing COMMAND_ACKs, lost mission items, a link that
-dies in the middle of a mission upload. Its heartbeat says PX4 by
-default, or ArduPilot, so both flavours' paths are exercised."""
+dies in the middle of a mission upload, a failsafe or a pilot taking it
+over. Its heartbeat says PX4 by default, or ArduPilot, so both flavours'
+paths are exercised."""
 
 import os
 import threading
@@ -14,6 +15,29 @@ from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 HOME = (47.397742, 8.545594, 488.0)
 
 
+def px4_mode(main, sub=0):
+    """PX4's custom_mode: the main mode in bits 16..24, the sub mode in 24..32."""
+    return (main << 16) | (sub << 24)
+
+
+# The modes the tests switch to, as each autopilot numbers them.
+PX4 = {"MANUAL": px4_mode(1), "POSCTL": px4_mode(3), "OFFBOARD": px4_mode(6),
+       "AUTO.TAKEOFF": px4_mode(4, 2), "AUTO.LOITER": px4_mode(4, 3), "AUTO.MISSION": px4_mode(4, 4),
+       "AUTO.RTL": px4_mode(4, 5), "AUTO.LAND": px4_mode(4, 6)}
+COPTER = {"STABILIZE": 0, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9}
+# The modes a flying autopilot enters when it accepts these commands
+# (`mode_on`): PX4's takeoff mode (its hold follows when the climb ends),
+# landing, return and mission modes; ArduPilot stays in GUIDED to take off.
+FLIGHT_MODES = {
+    mav.MAV_AUTOPILOT_PX4: {mav.MAV_CMD_NAV_TAKEOFF: PX4["AUTO.TAKEOFF"], mav.MAV_CMD_NAV_LAND: PX4["AUTO.LAND"],
+                            mav.MAV_CMD_NAV_RETURN_TO_LAUNCH: PX4["AUTO.RTL"],
+                            mav.MAV_CMD_MISSION_START: PX4["AUTO.MISSION"]},
+    mav.MAV_AUTOPILOT_ARDUPILOTMEGA: {mav.MAV_CMD_NAV_LAND: COPTER["LAND"],
+                                      mav.MAV_CMD_NAV_RETURN_TO_LAUNCH: COPTER["RTL"],
+                                      mav.MAV_CMD_MISSION_START: COPTER["AUTO"]},
+}
+
+
 class FaultyAutopilot:
     """An autopilot on `udpout:127.0.0.1:port` (or another `transport`) whose answers a test sets:
 
@@ -24,7 +48,13 @@ class FaultyAutopilot:
     - `mission_result`: the MISSION_ACK result at the end of an upload;
     - `params`: name -> (raw float on the wire, MAV_PARAM_TYPE);
     - `request_out_of_range_after`: after this mission item, also ask for
-      an item past the end of the mission.
+      an item past the end of the mission;
+    - `mode_on[cmd] = custom_mode`: the mode it enters when it accepts
+      `cmd` (FLIGHT_MODES has a flying autopilot's);
+    - `armed`, `custom_mode`, `system_status`, `landed_state` (None: no
+      EXTENDED_SYS_STATE at all), `home` and `home_local` (HOME_POSITION's
+      global and local position): what it reports, from the start when
+      given to the constructor, changed at once with `switch`.
     Everything received is in `received` (monotonic time, message).
 
     `signing_key` (32 bytes) signs what it sends; it then still takes in
@@ -34,7 +64,8 @@ class FaultyAutopilot:
     """
 
     def __init__(self, port, autopilot=mav.MAV_AUTOPILOT_PX4, transport="udpout", signing_key=None,
-                 system_id=1):
+                 system_id=1, armed=False, custom_mode=0, landed_state=None,
+                 system_status=mav.MAV_STATE_STANDBY, params=None, mode_on=None):
         self.conn = mavutil.mavlink_connection(
             f"{transport}:127.0.0.1:{port}", source_system=system_id, source_component=1,
             dialect="ardupilotmega")
@@ -51,11 +82,16 @@ class FaultyAutopilot:
         self.die_after_item = None
         self.request_out_of_range_after = None
         self.mission_result = mav.MAV_MISSION_ACCEPTED
-        self.params = {}
+        self.params = dict(params or {})
+        self.mode_on = dict(mode_on or {})
         self.mission = []
         self.mission_count = 0
-        self.armed = False
-        self.custom_mode = 0
+        self.armed = armed
+        self.custom_mode = custom_mode
+        self.system_status = system_status
+        self.landed_state = landed_state
+        self.home = HOME
+        self.home_local = (0.0, 0.0, 0.0)
         self.silent = threading.Event()
         self._stop = threading.Event()
         self._threads = [threading.Thread(target=f, daemon=True) for f in (self._beat, self._listen)]
@@ -67,16 +103,21 @@ class FaultyAutopilot:
             with self.lock:
                 fn(*args, **kwargs)
 
+    def _heartbeat(self):
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if self.armed:
+            base |= mav.MAV_MODE_FLAG_SAFETY_ARMED
+        self._send(self.conn.mav.heartbeat_send, mav.MAV_TYPE_QUADROTOR, self.autopilot, base,
+                   self.custom_mode, self.system_status)
+        if self.landed_state is not None:
+            self._send(self.conn.mav.extended_sys_state_send, mav.MAV_VTOL_STATE_MC, self.landed_state)
+
     def _beat(self):
         m = self.conn.mav
         while not self._stop.is_set():
-            base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-            if self.armed:
-                base |= mav.MAV_MODE_FLAG_SAFETY_ARMED
-            self._send(m.heartbeat_send, mav.MAV_TYPE_QUADROTOR, self.autopilot, base,
-                       self.custom_mode, mav.MAV_STATE_STANDBY)
-            lat, lon = int(HOME[0] * 1e7), int(HOME[1] * 1e7)
-            self._send(m.home_position_send, lat, lon, int(HOME[2] * 1000), 0.0, 0.0, 0.0,
+            self._heartbeat()
+            (lat, lon, alt), (x, y, z) = self.home, self.home_local
+            self._send(m.home_position_send, int(lat * 1e7), int(lon * 1e7), int(alt * 1000), x, y, z,
                        [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
             boot_ms = int((time.monotonic() - self.booted) * 1000)
             self._send(m.system_time_send, int(time.time() * 1e6), boot_ms)
@@ -101,7 +142,12 @@ class FaultyAutopilot:
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM and result == mav.MAV_RESULT_ACCEPTED:
             self.armed = msg.param1 == 1.0
         if cmd == mav.MAV_CMD_DO_SET_MODE and result == mav.MAV_RESULT_ACCEPTED:
-            self.custom_mode = int(msg.param2)
+            if self.autopilot == mav.MAV_AUTOPILOT_ARDUPILOTMEGA:
+                self.custom_mode = int(msg.param2)
+            else:
+                self.custom_mode = px4_mode(int(msg.param2), int(msg.param3))
+        if cmd in self.mode_on and result == mav.MAV_RESULT_ACCEPTED:
+            self.custom_mode = self.mode_on[cmd]
         ack = (self.conn.mav.command_ack_send, cmd, result, 0, 0, msg.get_srcSystem(),
                msg.get_srcComponent())
         delay = self.ack_delay.get(cmd, 0)
@@ -147,13 +193,25 @@ class FaultyAutopilot:
             self.params[msg.param_id] = (msg.param_value, msg.param_type)
             self._param_value(msg.param_id)
 
-    def commands(self, cmd):
-        with self.lock:
-            return [m for _, m in self.received if m.get_type() == "COMMAND_LONG" and m.command == cmd]
+    def switch(self, **what):
+        """Changes what it reports (`custom_mode`, `armed`, `system_status`,
+        `landed_state`) and heartbeats at once, as an autopilot does on a
+        mode change; returns the monotonic time it did."""
+        for name, value in what.items():
+            assert hasattr(self, name), name
+            setattr(self, name, value)
+        when = time.monotonic()
+        self._heartbeat()
+        return when
 
-    def messages(self, kind):
+    def commands(self, cmd, since=0.0):
         with self.lock:
-            return [m for _, m in self.received if m.get_type() == kind]
+            return [m for t, m in self.received
+                    if t >= since and m.get_type() == "COMMAND_LONG" and m.command == cmd]
+
+    def messages(self, kind, since=0.0):
+        with self.lock:
+            return [m for t, m in self.received if t >= since and m.get_type() == kind]
 
     def close(self):
         self._stop.set()

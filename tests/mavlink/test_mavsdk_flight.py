@@ -95,6 +95,9 @@ def test_takeoff_arms_and_climbs(flight):
                      lambda: (s := client.state())["fsm"] == "hover" and s)
     assert state["armed"] is True
     assert state["altitude"] == pytest.approx(2.5, abs=0.15)
+    # The autopilot's hold after the takeoff is lluavd's doing, no failsafe.
+    state = wait_for("the hold after the climb", lambda: (s := client.state())["mode"] == "AUTO.LOITER" and s)
+    assert state["failsafe"] is None
 
 
 def test_the_armed_gate_reads_the_heartbeat(flight):
@@ -126,6 +129,8 @@ def test_setpoints_are_streamed_and_followed(flight):
 def test_streaming_stops_when_the_client_that_set_it_leaves(flight):
     daemon, autopilot, client = flight
     other = daemon.client()
+    # One session flies at a time: the second takes over first.
+    other.ok("control_take")
     other.ok("set_sp_ned 3:2:-5:0.5")
     client.close()  # set the first setpoint: gone too
     daemon.clients.remove(client)
@@ -179,6 +184,9 @@ def test_mw_exec_flies_the_waypoints_and_reports_progress(flight):
     assert run["reached"] == [1, 7]
     p = autopilot.position()
     assert math.dist(p, [10, 10, -6]) < 0.2, p
+    # Nor is the hold at the mission's end.
+    state = wait_for("the hold at the end", lambda: (s := client.state())["mode"] == "AUTO.LOITER" and s)
+    assert state["failsafe"] is None
     result = client.ok("dump_missionresult 42")["result"]
     assert result["status"] == "completed"
 

@@ -13,11 +13,16 @@
 //! own test CA ([`test_ca`], made with rcgen); [`Conn`] trusts that CA.
 //! [`over_ws_and_wss!`] runs a set of tests both ways.
 //!
+//! [`target::Target`] is the server of the tests every adapter must pass
+//! (`tests/mcu.rs`): lluavd at the MCU's limits, or the firmware on the
+//! emulated board when `LLUAV_TEST_BOARD` says how to start one.
+//!
 //! For the uplink: [`broker`] starts real Mosquittos and speaks MQTT 5 to
 //! them; [`flooder`] is a stand-in broker that floods and never reads.
 
 pub mod broker;
 pub mod flooder;
+pub mod target;
 
 use std::io::{BufRead, BufReader, Read};
 use std::net::{IpAddr, SocketAddr};
@@ -287,7 +292,7 @@ impl Drop for Lluavd {
     }
 }
 
-fn wait_timeout(child: &mut Child, limit: Duration) -> Option<ExitStatus> {
+pub(crate) fn wait_timeout(child: &mut Child, limit: Duration) -> Option<ExitStatus> {
     let start = Instant::now();
     while start.elapsed() < limit {
         match child.try_wait() {
@@ -611,5 +616,36 @@ pub async fn wait_for_state(conn: &mut Conn, what: &str, done: impl Fn(&Value) -
         }
         assert!(start.elapsed() < WAIT, "state never became {what}; last: {r}");
         tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// A valid argument string for each grammar, so that every command reaches
+/// the backend.
+pub fn sample_args(grammar: lluav_core::Grammar) -> &'static str {
+    use lluav_core::Grammar;
+    match grammar {
+        Grammar::None | Grammar::OptName => "",
+        Grammar::Flag => "1",
+        Grammar::OptCount => "5",
+        Grammar::Pwm => "1500",
+        Grammar::Amount => "12.5",
+        Grammar::OptAmount => "0",
+        Grammar::Angle => "-30",
+        Grammar::Name => "sample",
+        Grammar::Path => "sample/dir",
+        Grammar::Text => "sample text",
+        Grammar::TaskName => "sample task",
+        Grammar::Secret => "1025",
+        Grammar::NewPassword => "n3wpass",
+        Grammar::ParamName => "takeoff_alt",
+        Grammar::SetParam => "takeoff_alt:3.5",
+        Grammar::Setpoint => "1.0:2.0:-3.0:0.5",
+        Grammar::Point => "10.0:5.0:-2.0",
+        Grammar::Pose => "1.0,2.0,-3.0,0.5",
+        Grammar::Zyhk => "1.5,2.0,2.5",
+        Grammar::Mission => r#"1001:{"waypoints":[{"x":1,"y":2,"z":-3},{"x":4,"y":5,"z":-3,"yaw":1.5}]}"#,
+        Grammar::MwExec => "1001:1,2",
+        Grammar::Ai1Mission => "task-1:missions/a.json",
+        Grammar::Override => "failsafe",
     }
 }

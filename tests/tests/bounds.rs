@@ -36,12 +36,18 @@ fn deep_file(root: &Path, dirs: usize, n: usize, content: &str) -> String {
     rel
 }
 
+/// An altitude (NED `z`) with as many significant digits as [`LONG`]
+/// that stays inside the envelope `fill_parameters` leaves (`min_alt`
+/// 1.4 m, `max_alt` 62 m): a waypoint outside it is refused (DESIGN.md,
+/// "Flight authority"), and no altitude in it needs an exponent.
+const LONG_Z: &str = "-12.345678901234567";
+
 /// A mission of `n` waypoints, each member's number as long as it gets.
 fn longest_mission(n: u32) -> String {
     let wps: Vec<String> = (0..n)
         .map(|i| {
             format!(
-                r#"{{"id":{},"x":{LONG},"y":{LONG},"z":{LONG},"yaw":{LONG}}}"#,
+                r#"{{"id":{},"x":{LONG},"y":{LONG},"z":{LONG_Z},"yaw":{LONG}}}"#,
                 u32::MAX - i
             )
         })
@@ -98,6 +104,7 @@ fn largest_args(name: &str, grammar: Grammar, paths: &Paths) -> String {
         (_, Grammar::Name | Grammar::OptName) => format!("q{}", quotes(127)),
         (_, Grammar::Path) => paths.map.clone(),
         (_, Grammar::Text) => quotes(4096),
+        (_, Grammar::TaskName) => quotes(256),
         (_, Grammar::Secret) => "1025".into(),
         (_, Grammar::NewPassword) => "P".repeat(32),
         (_, Grammar::ParamName) => "geofence_radius".into(),
@@ -146,7 +153,9 @@ async fn with_every_stored_value_at_its_maximum_no_command_answers_response_too_
                 &data.join("missions/far"),
                 0,
                 10,
-                &longest_mission(400).replace(LONG, "-1.2345678901234567e300")
+                &longest_mission(400)
+                    .replace(LONG_Z, LONG)
+                    .replace(LONG, "-1.2345678901234567e300")
             )
         ),
     };
@@ -159,13 +168,16 @@ async fn with_every_stored_value_at_its_maximum_no_command_answers_response_too_
         ok(&mut c, "unlock_plan").await;
     }
     for (frame, why) in [
-        (format!("plan {}", quotes(4097)), "plan longer than 4096 bytes"),
+        (format!("plan {}", quotes(4097)), "text longer than 4096 bytes"),
         (
             format!("set_taskname {}", quotes(257)),
             "task name longer than 256 bytes",
         ),
         (
-            format!("mission 7:{}", longest_mission(401).replace(LONG, "-1")),
+            format!(
+                "mission 7:{}",
+                longest_mission(401).replace(LONG, "-1").replace(LONG_Z, "-2")
+            ),
             "more than 400 waypoints",
         ),
         (
@@ -218,18 +230,22 @@ async fn with_every_stored_value_at_its_maximum_no_command_answers_response_too_
 
     let mut answered_whole = 0;
     for spec in &TABLE {
-        let args = largest_args(spec.name, spec.grammar, &paths);
+        let args = largest_args(spec.name(), spec.grammar, &paths);
         let frame = if args.is_empty() {
-            spec.name.to_owned()
+            spec.name().to_owned()
         } else {
-            format!("{} {args}", spec.name)
+            format!("{} {args}", spec.name())
         };
-        assert!(lluav_core::parse(&frame).is_ok(), "`{}` must be valid", spec.name);
+        assert!(
+            lluav_core::parse(&frame).is_ok(),
+            "`{}` must be valid",
+            spec.name()
+        );
         let r = c.request(&frame).await;
-        assert_ne!(r["msg"], TOO_LARGE, "{}", spec.name);
+        assert_ne!(r["msg"], TOO_LARGE, "{}", spec.name());
         answered_whole += 1;
         let state = c.request("state").await;
-        assert_eq!(state["ret"], 0, "state after {}: {state}", spec.name);
+        assert_eq!(state["ret"], 0, "state after {}: {state}", spec.name());
     }
     assert_eq!(answered_whole, lluav_core::TABLE.len());
     for (frame, list) in [
@@ -257,5 +273,60 @@ async fn with_every_stored_value_at_its_maximum_no_command_answers_response_too_
         r["missions"].as_array().map(Vec::len),
         Some(16),
         "every kept mission"
+    );
+}
+
+#[tokio::test]
+async fn lists_say_truncated_whenever_entries_were_left_out_a_count_included_and_their_total() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password("s3cret"));
+    let mut c = Conn::login(&daemon.url, "s3cret").await;
+    // Each answered set_param logs a line: more than showmsg's 50.
+    for i in 0..60 {
+        ok(&mut c, &format!("set_param cruise_speed:{}", 1 + i % 5)).await;
+    }
+    let r = ok(&mut c, "showmsg").await;
+    let total = r["total"].as_u64().expect("total");
+    assert!(total >= 60, "{r}");
+    assert_eq!(
+        (r["msgs"].as_array().map(Vec::len), &r["truncated"]),
+        (Some(50), &Value::Bool(true)),
+        "50 of {total}"
+    );
+    let r = ok(&mut c, "showmsg 0").await;
+    assert_eq!(
+        (r["msgs"].as_array().map(Vec::len), &r["truncated"]),
+        (Some(0), &Value::Bool(true)),
+        "{r}"
+    );
+    assert!(r["total"].as_u64().is_some_and(|t| t >= total), "{r}");
+    let r = ok(&mut c, "showmsg 4294967295").await;
+    assert_eq!(r["truncated"], false, "every line fits: {r}");
+    assert_eq!(r["msgs"].as_array().map(|a| a.len() as u64), r["total"].as_u64());
+
+    for name in ["day1", "day2"] {
+        std::fs::create_dir(dir.path().join("images").join(name)).expect("image dir");
+    }
+    for (frame, shown, truncated) in [
+        ("list_imagedir 0", 0, true),
+        ("list_imagedir 1", 1, true),
+        ("list_imagedir 2", 2, false),
+        ("list_imagedir", 2, false),
+    ] {
+        let r = ok(&mut c, frame).await;
+        assert_eq!(
+            (
+                r["imagedirs"].as_array().map(Vec::len),
+                &r["truncated"],
+                &r["total"]
+            ),
+            (Some(shown), &Value::Bool(truncated), &Value::from(2)),
+            "{frame}: {r}"
+        );
+    }
+    let r = ok(&mut c, "list_maps").await;
+    assert_eq!(
+        (&r["truncated"], &r["total"]),
+        (&Value::Bool(false), &Value::from(0))
     );
 }

@@ -205,3 +205,82 @@ async fn a_setpoint_at_or_below_the_ground_is_refused_and_the_vehicle_keeps_hove
     assert!((z(&r) - z(&hover)).abs() < 1e-3, "still at its height: {r}");
     assert_eq!(c.request("set_sp_ned 3:0:-0.5:0").await["ret"], 0);
 }
+
+#[tokio::test]
+async fn every_range_refusal_names_the_range() {
+    let (_dir, _d, mut c) = daemon().await;
+    let float = "number beyond a 32-bit float (3.4028235e38)";
+    for (frame, why) in [
+        ("ara8_pitch 90.000001", "angle out of range -90..90"),
+        ("ara8_pitch -91", "angle out of range -90..90"),
+        ("ledpwm 65536", "PWM value out of range 0..65535"),
+        ("grabber_ctrl 99999999999", "PWM value out of range 0..65535"),
+        ("showmsg 4294967296", "integer out of range 0..4294967295"),
+        ("mw_exec 4294967296:1", "integer out of range 0..4294967295"),
+        ("apron_vol -1", "number below 0"),
+        ("clear_images -1e-50", "number below 0"),
+        ("set_sp_ned 1e39:0:-3:0", float),
+        ("test_wp 0:0:-1e39", float),
+        ("zyhk -0", "zyhk height 0 must be above 0"),
+        ("zyhk 2,-1e-50", "zyhk height 0 must be above 0"),
+        ("apron_vol 60.000001", "voltage 60.000001 above 60"),
+        (
+            "set_param takeoff_alt:121",
+            "takeoff_alt 121 out of range 0.5..120",
+        ),
+        (
+            "set_param takeoff_alt:1e39",
+            "takeoff_alt 1e39 out of range 0.5..120",
+        ),
+        (
+            "set_param mavlink_rate:99999999999999999999",
+            "mavlink_rate 99999999999999999999 out of range 1..400",
+        ),
+    ] {
+        let r = c.request(frame).await;
+        assert_eq!(
+            refused(&r),
+            (-2, &*format!("Invalid arguments: {why}")),
+            "{frame}"
+        );
+    }
+}
+
+#[tokio::test]
+async fn stored_text_holds_no_control_or_format_characters_and_has_a_maximum() {
+    let (_dir, _d, mut c) = daemon().await;
+    for (frame, usage) in [
+        ("set_taskname a\u{202E}b", "set_taskname name"),
+        ("set_taskname zero\u{200B}width", "set_taskname name"),
+        ("plan east\u{2066}field", "plan plan_string"),
+        ("plan bell\u{7}", "plan plan_string"),
+        ("set_param takeoff_alt:3\u{202E}", "set_param name:value"),
+    ] {
+        let r = c.request(frame).await;
+        assert_eq!(
+            refused(&r),
+            (-2, &*format!("Invalid arguments, usage: {usage}")),
+            "{frame:?}"
+        );
+    }
+    let r = c.request(&format!("set_taskname {}", "t".repeat(257))).await;
+    assert_eq!(
+        refused(&r),
+        (-2, "Invalid arguments: task name longer than 256 bytes")
+    );
+    let r = c.request(&format!("plan {}", "p".repeat(4097))).await;
+    assert_eq!(
+        refused(&r),
+        (-2, "Invalid arguments: text longer than 4096 bytes")
+    );
+    // Text, not a file name: 200 bytes, slashes and dots are fine.
+    let task = format!("north/field.{}", "t".repeat(244));
+    assert_eq!(c.request(&format!("set_taskname {task}")).await["ret"], 0);
+    let plan = format!("../{}", "p".repeat(4093));
+    assert_eq!(c.request(&format!("plan {plan}")).await["ret"], 0);
+    let s = c.request("state").await;
+    assert_eq!(
+        (s["state"]["taskname"].as_str(), s["state"]["plan"].as_str()),
+        (Some(&*task), Some(&*plan))
+    );
+}

@@ -2,8 +2,8 @@
 //! flight of the simulated vehicle, and every command of the table; each
 //! over `ws://` and over `wss://`.
 
-use lluav_core::{CommandId, Grammar, TABLE};
-use lluav_tests::{Conn, Lluavd, Options, Scheme, wait_for_state};
+use lluav_core::{CommandId, TABLE};
+use lluav_tests::{Conn, Lluavd, Options, Scheme, sample_args, wait_for_state};
 use serde_json::Value;
 
 const PASSWORD: &str = "s3cret";
@@ -130,35 +130,6 @@ async fn a_whole_flight_takes_off_follows_setpoints_and_lands(scheme: Scheme) {
     c.close().await;
 }
 
-/// A valid argument string for each grammar, so that every command reaches
-/// the backend.
-fn sample_args(grammar: Grammar) -> &'static str {
-    match grammar {
-        Grammar::None | Grammar::OptName => "",
-        Grammar::Flag => "1",
-        Grammar::OptCount => "5",
-        Grammar::Pwm => "1500",
-        Grammar::Amount => "12.5",
-        Grammar::OptAmount => "0",
-        Grammar::Angle => "-30",
-        Grammar::Name => "sample",
-        Grammar::Path => "sample/dir",
-        Grammar::Text => "sample text",
-        Grammar::Secret => "1025",
-        Grammar::NewPassword => "n3wpass",
-        Grammar::ParamName => "takeoff_alt",
-        Grammar::SetParam => "takeoff_alt:3.5",
-        Grammar::Setpoint => "1.0:2.0:-3.0:0.5",
-        Grammar::Point => "10.0:5.0:-2.0",
-        Grammar::Pose => "1.0,2.0,-3.0,0.5",
-        Grammar::Zyhk => "1.5,2.0,2.5",
-        Grammar::Mission => r#"1001:{"waypoints":[{"x":1,"y":2,"z":-3},{"x":4,"y":5,"z":-3,"yaw":1.5}]}"#,
-        Grammar::MwExec => "1001:1,2",
-        Grammar::Ai1Mission => "task-1:missions/a.json",
-        Grammar::Override => "failsafe",
-    }
-}
-
 async fn every_command_of_the_table_gets_exactly_one_valid_response(scheme: Scheme) {
     let dir = tempfile::tempdir().expect("temp dir");
     let daemon = Lluavd::start(dir.path(), &scheme.options(PASSWORD));
@@ -166,9 +137,9 @@ async fn every_command_of_the_table_gets_exactly_one_valid_response(scheme: Sche
     for spec in &TABLE {
         let args = sample_args(spec.grammar);
         let frame = if args.is_empty() {
-            spec.name.to_owned()
+            spec.name().to_owned()
         } else {
-            format!("{} {args}", spec.name)
+            format!("{} {args}", spec.name())
         };
         assert!(
             lluav_core::parse(&frame).is_ok(),
@@ -185,7 +156,7 @@ async fn every_command_of_the_table_gets_exactly_one_valid_response(scheme: Sche
         assert!(!msg(&r).starts_with("Invalid arguments, usage"), "`{frame}`: {r}");
         assert_ne!(r["ret"], -100, "`{frame}` hit a fault in the simulator: {r}");
         if spec.id == CommandId::Help {
-            let names: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
+            let names: Vec<&str> = TABLE.iter().map(|s| s.name()).collect();
             assert_eq!(r["commands"], serde_json::json!(names), "help lists the table");
         }
         if spec.id == CommandId::State {

@@ -64,6 +64,10 @@ async fn waypoints_are_objects_and_mission_reasons_speak_the_protocol() {
             r#"mission 1:[{"x":"1","y":0,"z":-2}]"#,
             r#"waypoint 1: "x" is not a number"#,
         ),
+        (
+            r#"mission 1:[{"x":1e400,"y":0,"z":-2}]"#,
+            r#"waypoint 1: "x" out of range (a 64-bit float: -1.7976931348623157e308..1.7976931348623157e308)"#,
+        ),
     ] {
         assert_eq!(answer(&mut c, frame).await, invalid(why), "{frame}");
     }
@@ -117,4 +121,43 @@ async fn client_paths_never_reach_the_daemons_own_files() {
         let r = c.request(listing).await;
         assert!(!r.to_string().contains("password"), "{listing}: {r}");
     }
+}
+
+#[tokio::test]
+async fn savemap_onto_a_directory_is_a_wrong_request() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::password(PASSWORD));
+    std::fs::create_dir(dir.path().join("maps/site")).expect("a directory among the maps");
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    assert_eq!(
+        answer(&mut c, "savemap site").await,
+        invalid("site is a directory, not a map file")
+    );
+    assert!(dir.path().join("maps/site").is_dir(), "left as it was");
+}
+
+#[tokio::test]
+async fn passwd_says_why_it_refuses_a_special_login_value() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::write(dir.path().join("password"), PASSWORD).expect("password saved");
+    let daemon = Lluavd::start(dir.path(), &Options::default());
+    let mut c = Conn::login(&daemon.url, PASSWORD).await;
+    for value in ["1025", "0315"] {
+        assert_eq!(
+            answer(&mut c, &format!("passwd {value}")).await,
+            invalid("the admin and logout values cannot be passwords"),
+            "{value}"
+        );
+    }
+    assert_eq!(
+        answer(&mut c, "passwd two words").await,
+        (-2, "Invalid arguments, usage: passwd new_password".into())
+    );
+    c.close().await;
+    let mut c = Conn::connect(&daemon.url).await;
+    assert_eq!(
+        c.request(&format!("login {PASSWORD}")).await["ret"],
+        0,
+        "unchanged"
+    );
 }

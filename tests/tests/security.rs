@@ -191,6 +191,28 @@ async fn five_wrong_passwords_lock_the_address_out_across_connections_until_the_
 }
 
 #[tokio::test]
+async fn a_login_refused_by_the_lockout_says_when_to_retry() {
+    let (_dir, d) = daemon(&Options::password(PASSWORD).with_args(&["--login-lockout", "30"]));
+    for i in 0..5 {
+        assert_eq!(login_once(&d.url, "guess").await, "Wrong password!", "guess {i}");
+    }
+    let mut c = Conn::connect(&d.url).await;
+    let r = c.request(&format!("login {PASSWORD}")).await;
+    assert_eq!(
+        (r["ret"].as_i64(), r["msg"].as_str()),
+        (Some(-1), Some(THROTTLED)),
+        "{r}"
+    );
+    let after = r["retry_after_s"].as_u64().expect("retry_after_s");
+    assert!(
+        (29..=30).contains(&after),
+        "the 30 s lockout, in whole seconds: {r}"
+    );
+    let r = c.request("login guess").await;
+    assert!(r["retry_after_s"].as_u64().is_some_and(|s| s <= after), "{r}");
+}
+
+#[tokio::test]
 async fn the_public_logout_value_does_not_reset_the_count() {
     let (_dir, d) = daemon(&Options::password(PASSWORD));
     let mut c = Conn::connect(&d.url).await;

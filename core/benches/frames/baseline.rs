@@ -49,7 +49,7 @@ impl Baseline {
                     grammar: s.grammar,
                     usage: s.usage.to_string(),
                 };
-                (s.name.to_string(), info)
+                (s.name().to_string(), info)
             })
             .collect();
         Baseline {

@@ -78,6 +78,30 @@ pub(crate) fn write_i64(v: i64, out: &mut [u8; INT_ROOM]) -> usize {
     digits_at(v.unsigned_abs(), out, sign)
 }
 
+/// An integer's decimal text, for a message made of parts (no
+/// `core::fmt`, which a firmware would link for it).
+pub(crate) struct Digits {
+    buf: [u8; INT_ROOM],
+    len: usize,
+}
+
+impl Digits {
+    /// The digits of `v`.
+    pub(crate) fn of(v: i64) -> Digits {
+        let mut buf = [0; INT_ROOM];
+        let len = write_i64(v, &mut buf);
+        Digits { buf, len }
+    }
+
+    /// The text.
+    pub(crate) fn as_str(&self) -> &str {
+        self.buf
+            .get(..self.len)
+            .and_then(|b| core::str::from_utf8(b).ok())
+            .unwrap_or("")
+    }
+}
+
 /// Writes `v` (below 100) at `at`: one or two digits (the second written
 /// over the first when there is only one); returns where they end.
 #[inline]

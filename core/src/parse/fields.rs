@@ -13,7 +13,7 @@ use nom::combinator::{all_consuming, rest};
 use nom::sequence::separated_pair;
 use nom::{Offset, Parser};
 
-use crate::error::ArgError;
+use crate::error::{ArgError, Bound};
 use crate::number::{Number, parse_f32};
 
 type NomError<'a> = nom::error::Error<&'a [u8]>;
@@ -30,7 +30,7 @@ pub(crate) fn number(token: &str) -> Result<Number<'_>, ArgError> {
     // Not in the grammar (`nan` and `inf` are words, not numbers), or
     // beyond an f32.
     Number::parse(token).ok_or(match parse_f32(token) {
-        Some(_) => ArgError::NotFinite,
+        Some(_) => ArgError::OutOfRange(Bound::Float),
         None => ArgError::NotANumber,
     })
 }
@@ -53,12 +53,17 @@ pub(crate) fn uint(token: &str) -> Result<u32, ArgError> {
         .try_fold(0u32, |v, &d| {
             v.checked_mul(10)?.checked_add(u32::from(d.wrapping_sub(b'0')))
         })
-        .ok_or(ArgError::OutOfRange)
+        .ok_or(ArgError::OutOfRange(Bound::Integer))
 }
 
 /// An integer PWM value, 0–65535.
 pub(crate) fn pwm(token: &str) -> Result<u16, ArgError> {
-    u16::try_from(uint(token)?).map_err(|_| ArgError::OutOfRange)
+    let too_large = ArgError::OutOfRange(Bound::Pwm);
+    match uint(token) {
+        Ok(v) => u16::try_from(v).map_err(|_| too_large),
+        Err(ArgError::OutOfRange(_)) => Err(too_large),
+        Err(e) => Err(e),
+    }
 }
 
 /// Exactly `0` or `1`.

@@ -17,7 +17,9 @@ mod scan;
 mod validate;
 
 pub use json::MAX_JSON_DEPTH;
-pub use rules::{MAX_IDENT_LEN, MAX_NAME_LEN, MAX_PASSWORD_LEN, MAX_PATH_LEN};
+pub use rules::{
+    MAX_IDENT_LEN, MAX_NAME_LEN, MAX_PASSWORD_LEN, MAX_PATH_LEN, MAX_TASK_NAME_LEN, MAX_TEXT_LEN,
+};
 
 use crate::command::{Args, Command, LandPoint, Payload, Point, Pose};
 use crate::error::{ArgError, ParseError};
@@ -83,7 +85,8 @@ fn arguments(grammar: Grammar, args: Option<&str>) -> Result<Args<'_>, ArgError>
         Grammar::Name => Args::Name(rules::name(a)?),
         Grammar::OptName => Args::OptName(Some(rules::name(a)?)),
         Grammar::Path => Args::Path(rules::path(a)?),
-        Grammar::Text => Args::Text(rules::text(a)?),
+        Grammar::Text => Args::Text(rules::free_text(a)?),
+        Grammar::TaskName => Args::TaskName(rules::task_name(a)?),
         Grammar::Secret => Args::Secret(rules::secret(a)?),
         Grammar::NewPassword => Args::NewPassword(rules::new_password(a)?),
         Grammar::ParamName => Args::ParamName(rules::param_name(a)?),

@@ -4,8 +4,9 @@
 use core::cmp::Ordering;
 
 use crate::command::Pose;
-use crate::error::ArgError;
+use crate::error::{ArgError, Bound};
 use crate::number::{Exact, Number};
+use crate::session::{DEFAULT_ADMIN_PASSWORD, DEFAULT_LOGOUT_PASSWORD};
 
 /// Longest name that becomes a file, in bytes (so that a temporary name
 /// beside it still fits a filesystem's 255).
@@ -16,6 +17,11 @@ pub const MAX_PATH_LEN: usize = 1024;
 pub const MAX_IDENT_LEN: usize = 64;
 /// Longest login password.
 pub const MAX_PASSWORD_LEN: usize = 32;
+/// Longest free text (a plan), in bytes: `state` reports it, and the MCU's
+/// frame is 4 KiB.
+pub const MAX_TEXT_LEN: usize = 4096;
+/// Longest task name, in bytes (`state` reports it).
+pub const MAX_TASK_NAME_LEN: usize = 256;
 
 pub(crate) fn finite(v: f32) -> Result<f32, ArgError> {
     if v.is_finite() {
@@ -29,7 +35,7 @@ pub(crate) fn finite(v: f32) -> Result<f32, ArgError> {
 pub(crate) fn non_negative(n: Number<'_>) -> Result<Number<'_>, ArgError> {
     finite(n.value())?;
     if n.cmp_exact(&Exact::ZERO, 0.0) == Some(Ordering::Less) {
-        Err(ArgError::OutOfRange)
+        Err(ArgError::OutOfRange(Bound::NonNegative))
     } else {
         Ok(n)
     }
@@ -42,7 +48,7 @@ pub(crate) fn angle(n: Number<'_>) -> Result<f32, ArgError> {
     if n.cmp_exact(&Exact::MINUS_NINETY, -90.0) == Some(Ordering::Less)
         || n.cmp_exact(&Exact::NINETY, 90.0) == Some(Ordering::Greater)
     {
-        Err(ArgError::OutOfRange)
+        Err(ArgError::OutOfRange(Bound::Angle))
     } else {
         Ok(v)
     }
@@ -128,29 +134,59 @@ pub(crate) fn path(s: &str) -> Result<&str, ArgError> {
     Ok(s)
 }
 
-/// Free text: non-empty, no control characters, and no trailing space (the
-/// frame's trailing spaces are not part of it, so it could not round-trip).
+/// Text: non-empty, no control or format characters (Unicode Cc, Cf: a
+/// console showing stored text must not be spoofed, and U+202E turns
+/// `a\u{202E}b` around), and no trailing space (the frame's trailing
+/// spaces are not part of it, so it could not round-trip).
 pub(crate) fn text(s: &str) -> Result<&str, ArgError> {
     if s.is_empty() {
         Err(ArgError::Missing)
-    } else if s.ends_with(' ') || s.chars().any(is_control) {
+    } else if s.ends_with(' ') || s.chars().any(|c| is_control(c) || is_format(c)) {
         Err(ArgError::BadText)
     } else {
         Ok(s)
     }
 }
 
-/// A login attempt is text; whether it matches is the session's business.
+/// Free text (a plan): [`text`] of at most [`MAX_TEXT_LEN`] bytes.
+pub(crate) fn free_text(s: &str) -> Result<&str, ArgError> {
+    at_most(text(s)?, MAX_TEXT_LEN, Bound::Text)
+}
+
+/// A task name: [`text`] of at most [`MAX_TASK_NAME_LEN`] bytes.
+pub(crate) fn task_name(s: &str) -> Result<&str, ArgError> {
+    at_most(text(s)?, MAX_TASK_NAME_LEN, Bound::TaskName)
+}
+
+fn at_most(s: &str, max: usize, bound: Bound) -> Result<&str, ArgError> {
+    if s.len() > max {
+        Err(ArgError::OutOfRange(bound))
+    } else {
+        Ok(s)
+    }
+}
+
+/// A login attempt is text (no password holds a Cc or Cf character);
+/// whether it matches is the session's business.
 pub(crate) fn secret(s: &str) -> Result<&str, ArgError> {
     text(s)
 }
 
-/// DESIGN.md: 1–32 printable ASCII characters, no space. (That it is
-/// neither special login value depends on configuration: [`crate::Auth`]
-/// checks it.)
-pub(crate) fn new_password(s: &str) -> Result<&str, ArgError> {
+/// The characters of a password: 1–32 printable ASCII characters, no
+/// space (the special login values included).
+pub(crate) fn password_chars(s: &str) -> Result<&str, ArgError> {
     let ok = !s.is_empty() && s.len() <= MAX_PASSWORD_LEN && s.bytes().all(|b| b.is_ascii_graphic());
     if ok { Ok(s) } else { Err(ArgError::BadPassword) }
+}
+
+/// DESIGN.md: 1–32 printable ASCII characters, no space, not `1025` or
+/// `0315`. (A daemon may choose other special values; [`crate::Auth`]
+/// refuses those too.)
+pub(crate) fn new_password(s: &str) -> Result<&str, ArgError> {
+    match password_chars(s)? {
+        DEFAULT_ADMIN_PASSWORD | DEFAULT_LOGOUT_PASSWORD => Err(ArgError::SpecialPassword),
+        s => Ok(s),
+    }
 }
 
 fn ident<'a>(s: &'a str, extra: &[u8]) -> Result<&'a str, ArgError> {

@@ -116,3 +116,14 @@ pub(crate) fn write_error(buf: &mut [u8], ret: Ret, cmd: u8, ts: i64, parts: &[&
     s.byte(b'}');
     (!s.overflow).then_some(s.len)
 }
+
+/// Adds `retry_after_s` to the error response of `end` bytes in `buf` (a
+/// login the throttle refused says when to try again); the new length.
+pub(crate) fn retry_after(buf: &mut [u8], end: usize, secs: u32) -> Option<usize> {
+    // Over the closing brace.
+    let mut s = Sink::new(buf, end.checked_sub(1)?);
+    s.bytes(br#","retry_after_s":"#);
+    s.int(i64::from(secs));
+    s.byte(b'}');
+    (!s.overflow).then_some(s.len)
+}

@@ -107,26 +107,32 @@ macro_rules! value_writers {
 value_writers!(Fields, member, field(key: &str));
 value_writers!(Items, element, item());
 
+/// Values this close to zero are written `0`: a response carries no float
+/// noise (a yaw of 3.3e-16 left over from arithmetic is 0; DESIGN.md).
+const NOISE: f64 = 1e-6;
+
 /// Shortest round-trip text (`0.1`, `-10.0`, `1e30`: [`crate::number`],
-/// the same text as Ryu), `-0` written `0`; JSON has no NaN or infinity,
-/// so those are `null`.
+/// the same text as Ryu), `-0` and noise written as 0 (`0.0`); JSON has no NaN or
+/// infinity, so those are `null`.
 fn write_f32(v: f32, out: &mut [u8; number::MAX_LEN]) -> usize {
-    if v.is_finite() {
-        // `+ 0.0` turns -0 into 0 (IEEE 754: -0 + 0 = +0), which is how
-        // DESIGN.md writes it.
-        number::write_f32(v + 0.0, out)
+    if f64::from(v.abs()) <= NOISE {
+        number::write_f32(0.0, out)
+    } else if v.is_finite() {
+        number::write_f32(v, out)
     } else {
         put_all(out, b"null")
     }
 }
 
-/// Shortest round-trip text by Ryu (`1.5`, `-10.0`, `1e300`), `-0`
-/// written `0`, or `null`.
+/// Shortest round-trip text by Ryu (`1.5`, `-10.0`, `1e300`), `-0` and
+/// noise written as 0 (`0.0`), or `null`.
 /// Only host backends write doubles; a firmware that never does links
 /// none of Ryu.
 fn write_f64(v: f64, out: &mut [u8; 24]) -> usize {
-    if v.is_finite() {
-        put_all(out, ryu::Buffer::new().format_finite(v + 0.0).as_bytes())
+    if v.abs() <= NOISE {
+        put_all(out, ryu::Buffer::new().format_finite(0.0).as_bytes())
+    } else if v.is_finite() {
+        put_all(out, ryu::Buffer::new().format_finite(v).as_bytes())
     } else {
         put_all(out, b"null")
     }
@@ -153,6 +159,20 @@ impl<'b> Fields<'b> {
     pub fn fail(&mut self, ret: Ret, msg: fmt::Arguments<'_>) -> Failure {
         self.sink.failure(msg);
         Failure::written(ret)
+    }
+
+    /// As [`Fields::fail`], the message in parts (no `core::fmt`, which a
+    /// firmware would otherwise link for it).
+    pub fn fail_parts(&mut self, ret: Ret, parts: &[&str]) -> Failure {
+        self.sink.failure_parts(parts);
+        Failure::written(ret)
+    }
+
+    /// A string member made of `parts`, escaped.
+    pub fn str_parts(&mut self, key: &str, parts: &[&str]) -> &mut Self {
+        self.member(key);
+        self.sink.string(parts);
+        self
     }
 
     /// A string member holding what `text` formats to (escaped), for text

@@ -283,6 +283,24 @@ impl<'b> Sink<'b> {
     /// the text escaped and cut at a character boundary where it would not
     /// fit (leaving room for the closing `}`), then refuses further writes.
     pub(super) fn failure(&mut self, text: fmt::Arguments<'_>) {
+        // `Bounded` stops quietly when full; an error can only mean that.
+        self.failure_with(|w| {
+            let _ = fmt::write(w, text);
+        });
+    }
+
+    /// As [`Sink::failure`], the text in parts (no `core::fmt` machinery).
+    pub(super) fn failure_parts(&mut self, parts: &[&str]) {
+        self.failure_with(|w| {
+            for part in parts {
+                if fmt::Write::write_str(w, part).is_err() {
+                    break;
+                }
+            }
+        });
+    }
+
+    fn failure_with(&mut self, write: impl FnOnce(&mut Bounded<'_, 'b>)) {
         self.len = self.origin;
         self.overflow = false;
         self.bytes(br#","msg":""#);
@@ -294,8 +312,7 @@ impl<'b> Sink<'b> {
             limit,
             full: false,
         };
-        // `Bounded` stops quietly when full; an error can only mean that.
-        let _ = fmt::write(&mut w, text);
+        write(&mut w);
         self.byte(b'"');
         if !self.overflow {
             self.failed_at = Some(self.len);

@@ -16,5 +16,5 @@ mod fields;
 mod json;
 
 pub use envelope::MIN_RESPONSE_CAPACITY;
-pub(crate) use envelope::{finish, write_error};
+pub(crate) use envelope::{finish, retry_after, write_error};
 pub use fields::{Fields, Items};

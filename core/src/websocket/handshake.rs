@@ -42,6 +42,9 @@ pub enum Request<'a> {
 /// A valid WebSocket upgrade request: what the answer and the policy need.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Upgrade<'a> {
+    /// The request target as sent (`/`, `/events`): which endpoint the
+    /// client asks for is the adapter's business.
+    pub target: &'a str,
     /// The `Sec-WebSocket-Key`: 24 characters of base64 encoding 16 bytes.
     pub key: &'a [u8; KEY_LEN],
     /// The `Host` header's value (`name` or `name:port`), never empty.
@@ -249,6 +252,7 @@ impl<'a> Seen<'a> {
             .filter(valid_key)
             .ok_or(Malformed::Key)?;
         Ok(Request::Upgrade(Upgrade {
+            target,
             key,
             host,
             origin: self.origin,

@@ -1,7 +1,7 @@
 //! A minimal Cortex-M firmware that links only lluav-core: it answers the
 //! benchmark's frame mix through `Server::handle` with a small vehicle and a
 //! fixed clock, so its flash and static RAM are what the protocol core
-//! costs on its own (compare with the full firmware, `../firmware`).
+//! costs on its own (compare with the full firmware, `../boards/nucleo-h743zi`).
 //!
 //! The frames are read through volatile loads of a static table and every
 //! result goes through `black_box`, so the optimiser can neither fold the

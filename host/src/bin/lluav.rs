@@ -535,10 +535,10 @@ impl Completer for Commands {
         };
         let matches = TABLE
             .iter()
-            .filter(|s| s.name.starts_with(word))
+            .filter(|s| s.name().starts_with(word))
             .map(|s| Pair {
                 display: s.usage.to_owned(),
-                replacement: format!("{} ", s.name),
+                replacement: format!("{} ", s.name()),
             })
             .collect();
         Ok((start, matches))

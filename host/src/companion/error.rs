@@ -17,6 +17,10 @@ pub enum Error {
     /// pins the password.
     #[error("Password is set by the daemon's configuration")]
     PasswordPinned,
+    /// `rm_map` of the map in use: localisation would be left on a map
+    /// that is gone.
+    #[error("Map {0} is in use: set_mappath another map first")]
+    MapInUse(String),
     /// A command the companion does not own reached it: a routing bug,
     /// answered as a fault.
     #[error("Unhandled exception")]
@@ -44,7 +48,7 @@ impl Refusal for Error {
     fn ret(&self) -> Ret {
         match self {
             Error::Files(e) => e.ret(),
-            Error::PasswordPinned => Ret::Failed,
+            Error::PasswordPinned | Error::MapInUse(_) => Ret::Failed,
             Error::NotOwned(_) => Ret::Unhandled,
         }
     }

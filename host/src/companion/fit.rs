@@ -1,7 +1,8 @@
 //! Lists with no natural bound (log lines, files) answer as many entries
 //! as fit, newest first, and say `"truncated": true` when some were left
-//! out: no number of files or log lines can make such a command answer
-//! `Response too large`.
+//! out, for any reason (a count argument included), and how many there
+//! are, `"total"`: no number of files or log lines can make such a command
+//! answer `Response too large`.
 
 use lluav_core::Fields;
 
@@ -40,15 +41,21 @@ pub(crate) fn json_str_len(s: &str) -> usize {
         .sum::<usize>()
 }
 
-/// Writes `key` as an array of the strings that fit, then `truncated`.
-pub(crate) fn write_strings(out: &mut Fields<'_>, key: &str, strings: Vec<String>) {
-    let (strings, truncated) = fitting(strings, |s| json_str_len(s));
+/// Writes `key` as an array of the strings that fit, then whether any of
+/// the `total` there are were left out, and `total`.
+pub(crate) fn write_strings(out: &mut Fields<'_>, key: &str, strings: Vec<String>, total: usize) {
+    let (strings, _) = fitting(strings, |s| json_str_len(s));
     out.array(key, |a| {
         strings.iter().for_each(|s| {
             a.str(s);
         })
-    })
-    .bool("truncated", truncated);
+    });
+    write_counts(out, strings.len(), total);
+}
+
+/// `truncated` (fewer than `total` shown) and `total`.
+pub(crate) fn write_counts(out: &mut Fields<'_>, shown: usize, total: usize) {
+    out.bool("truncated", shown < total).u64("total", total as u64);
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ use std::fs;
 use lluav_core::{Args, Command, Fields};
 
 use super::error::{Error, Result};
-use super::fit::{fitting, json_str_len, write_strings};
+use super::fit::{fitting, json_str_len, write_counts, write_strings};
 use crate::files::{self, Area, Entry, Files, Kind, capture_dir};
 
 /// `list_imagedir`, `rm_imagedir`, `clear_images`.
@@ -30,10 +30,11 @@ fn list(files: &Files, size: Option<u32>, out: &mut Fields<'_>) -> Result {
     let mut dirs = files::entries(&files.area(Area::Images), Kind::Dirs)
         .map_err(|e| Error::io("list image directories", e))?;
     dirs.reverse();
+    let total = dirs.len();
     if let Some(n) = size {
         dirs.truncate(usize::try_from(n).unwrap_or(usize::MAX));
     }
-    write_entries(out, "imagedirs", dirs);
+    write_entries(out, "imagedirs", dirs, total);
     Ok(())
 }
 
@@ -71,17 +72,19 @@ pub(super) fn clear(
     })
     .map_err(|e| Error::io(format!("clear {}", area.dir_name()), e))?;
     tracing::info!(area = area.dir_name(), removed = removed.len(), "cleared");
-    write_strings(out, "removed", removed);
+    let total = removed.len();
+    write_strings(out, "removed", removed, total);
     out.u64("available_MB", files.free_bytes()? >> 20);
     Ok(())
 }
 
 /// Writes `key` as an array of the entries that fit (name, size, files,
-/// modification), then `truncated`.
-pub(super) fn write_entries(out: &mut Fields<'_>, key: &str, entries: Vec<Entry>) {
+/// modification), then whether any of the `total` there are were left
+/// out, and `total`.
+pub(super) fn write_entries(out: &mut Fields<'_>, key: &str, entries: Vec<Entry>, total: usize) {
     // `{"name":..,"bytes":..,"files":..,"modified_ms":..}` with every
     // number at its longest.
-    let (entries, truncated) = fitting(entries, |e| json_str_len(&e.name) + 100);
+    let (entries, _) = fitting(entries, |e| json_str_len(&e.name) + 100);
     out.array(key, |a| {
         for e in &entries {
             a.object(|o| {
@@ -91,6 +94,6 @@ pub(super) fn write_entries(out: &mut Fields<'_>, key: &str, entries: Vec<Entry>
                     .i64("modified_ms", e.modified_ms());
             });
         }
-    })
-    .bool("truncated", truncated);
+    });
+    write_counts(out, entries.len(), total);
 }

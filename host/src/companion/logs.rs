@@ -28,9 +28,9 @@ impl Logs {
         match cmd.args() {
             &Args::OptCount(n) => {
                 let n = n.map_or(DEFAULT_SHOWMSG, |n| usize::try_from(n).unwrap_or(usize::MAX));
-                let mut lines = self.log.recent(n);
+                let (mut lines, total) = self.log.recent_of(n);
                 lines.reverse();
-                write_strings(out, "msgs", lines);
+                write_strings(out, "msgs", lines, total);
                 Ok(())
             }
             _ => self.save(files, now_ms, out),

@@ -41,7 +41,8 @@ pub(super) fn run(
             let mut maps = files::entries(&files.area(Area::Maps), Kind::Files)
                 .map_err(|e| Error::io("list maps", e))?;
             maps.reverse();
-            write_entries(out, "maps", maps);
+            let total = maps.len();
+            write_entries(out, "maps", maps, total);
             Ok(())
         }
         (id, _) => Err(Error::NotOwned(id.name())),
@@ -60,15 +61,14 @@ fn choose(path: &str, files: &Files, kept: &mut Saved<Kept>, out: &mut Fields<'_
     Ok(())
 }
 
-fn remove(name: &str, files: &Files, kept: &mut Saved<Kept>, out: &mut Fields<'_>) -> Result {
+fn remove(name: &str, files: &Files, kept: &Saved<Kept>, out: &mut Fields<'_>) -> Result {
     let path = files.named(Area::Maps, name)?;
     let meta = fs::symlink_metadata(&path).map_err(|e| Error::about("stat", name, e))?;
     if meta.is_dir() {
         return Err(Error::not_found(format!("{name} is not a map file")));
     }
     if kept.get().map_path.as_deref() == Some(name) {
-        kept.update(|k| k.map_path = None)
-            .map_err(|e| Error::io("save the map path", e))?;
+        return Err(Error::MapInUse(name.to_owned()));
     }
     fs::remove_file(&path).map_err(|e| Error::about("remove", name, e))?;
     tracing::info!(map = name, "map removed");
@@ -88,9 +88,14 @@ pub(super) fn write_kfs(kept: &Kept, vehicle: &Snapshot, out: &mut Fields<'_>) {
     });
 }
 
-/// Saves the live map as `maps/<name>`: its keyframes and origin.
+/// Saves the live map as `maps/<name>`: its keyframes and origin. A
+/// directory of that name is the client's mistake (-2), not a failure of
+/// this machine.
 fn save(name: &str, files: &Files, now_ms: i64, vehicle: &Snapshot, out: &mut Fields<'_>) -> Result {
     let path = files.named(Area::Maps, name)?;
+    if fs::symlink_metadata(&path).is_ok_and(|m| m.is_dir()) {
+        return Err(Error::not_found(format!("{name} is a directory, not a map file")));
+    }
     let p = vehicle.position;
     let map = serde_json::json!({
         "name": name,

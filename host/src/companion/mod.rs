@@ -205,6 +205,11 @@ impl Companion {
         self.bags.sample(vehicle);
     }
 
+    /// Whether a bag is recording (it samples the vehicle every tick).
+    pub fn recording(&self) -> bool {
+        self.bags.recording()
+    }
+
     /// Persists what is pending: a recording bag's buffered samples.
     pub fn flush(&mut self) -> io::Result<()> {
         self.bags.flush()

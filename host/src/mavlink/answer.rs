@@ -6,6 +6,7 @@ use ::mavlink::dialects::ardupilotmega::MavParamType;
 use lluav_core::{Fields, Pose};
 
 use super::autopilot::{self, ParamValue};
+use crate::vehicle::Ned;
 
 /// A finished command's response fields.
 pub trait Answer: Send + 'static {
@@ -24,6 +25,32 @@ pub struct Acknowledged {
 impl Answer for Acknowledged {
     fn write(&self, out: &mut Fields<'_>) {
         out.str("fsm", self.fsm);
+    }
+}
+
+/// `rtl`, `mrtl`: returning home.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Returning {
+    /// `fsm` then.
+    pub fsm: &'static str,
+    /// Home, local NED, if the autopilot sent it.
+    pub home: Option<Ned>,
+    /// The altitude above home the return climbs to if lower, m, if
+    /// known.
+    pub return_alt: Option<f32>,
+}
+
+impl Answer for Returning {
+    fn write(&self, out: &mut Fields<'_>) {
+        out.str("fsm", self.fsm);
+        match self.home {
+            Some(h) => out.object("home", |o| h.write(o)),
+            None => out.null("home"),
+        };
+        match self.return_alt {
+            Some(alt) => out.f32("return_alt", alt),
+            None => out.null("return_alt"),
+        };
     }
 }
 

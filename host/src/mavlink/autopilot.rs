@@ -45,6 +45,24 @@ pub enum Phase {
     Other,
 }
 
+/// What a flight mode is to flight authority (DESIGN.md, "Flight
+/// authority"): whether the autopilot returns or lands on its own, or a
+/// pilot flies, when lluavd did not ask for it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// Returning home: PX4 AUTO.RTL and AUTO.RTGS; ArduPilot RTL,
+    /// SMART_RTL and AUTO_RTL.
+    Return,
+    /// Landing: PX4 AUTO.LAND and AUTO.PRECLAND; ArduPilot LAND.
+    Land,
+    /// A pilot flies on the sticks: PX4 MANUAL, ALTCTL, POSCTL,
+    /// STABILIZED, ACRO and RATTITUDE; ArduPilot STABILIZE, ACRO,
+    /// ALT_HOLD, LOITER, POSHOLD, SPORT, DRIFT and FLOWHOLD.
+    Manual,
+    /// Anything else: lluavd's own modes, holds, the takeoff.
+    Other,
+}
+
 /// PX4's main modes (custom_mode bits 16..24).
 const PX4_MAIN: [&str; 9] = [
     "UNKNOWN",
@@ -185,6 +203,27 @@ impl Flavour {
             "AUTO.RTL" | "RTL" | "SMART_RTL" | "AUTO_RTL" => Phase::Rtl,
             "AUTO.LAND" | "AUTO.PRECLAND" | "LAND" => Phase::Landing,
             _ => Phase::Other,
+        }
+    }
+
+    /// What the heartbeat's `custom_mode` is to flight authority.
+    pub fn kind(self, custom_mode: u32) -> Kind {
+        match self.mode_name(custom_mode) {
+            "AUTO.RTL" | "AUTO.RTGS" | "RTL" | "SMART_RTL" | "AUTO_RTL" => Kind::Return,
+            "AUTO.LAND" | "AUTO.PRECLAND" | "LAND" => Kind::Land,
+            "MANUAL" | "ALTCTL" | "POSCTL" | "STABILIZED" | "ACRO" | "RATTITUDE" | "STABILIZE"
+            | "ALT_HOLD" | "LOITER" | "POSHOLD" | "SPORT" | "DRIFT" | "FLOWHOLD" => Kind::Manual,
+            _ => Kind::Other,
+        }
+    }
+
+    /// The parameter holding the altitude this autopilot's return climbs
+    /// to (if lower), and how many of its units make a metre: PX4's
+    /// `RTL_RETURN_ALT` (m), ArduPilot's `RTL_ALT` (cm).
+    pub fn rtl_alt_param(self) -> (&'static str, f32) {
+        match self {
+            Flavour::ArduPilot => ("RTL_ALT", 100.0),
+            Flavour::Px4 | Flavour::Generic => ("RTL_RETURN_ALT", 1.0),
         }
     }
 
@@ -433,5 +472,50 @@ mod tests {
             Some([1.0, 3.0, 0.0])
         );
         assert_eq!(Flavour::ArduPilot.mode_name(99), "UNKNOWN");
+    }
+
+    #[test]
+    fn returns_landings_and_pilots_modes_are_told_apart_per_autopilot() {
+        let px4 = |main: u32, sub: u32| (main << 16) | (sub << 24);
+        for (mode, kind) in [
+            (px4(4, 5), Kind::Return),
+            (px4(4, 6), Kind::Land),
+            (px4(4, 9), Kind::Land),
+            (px4(3, 0), Kind::Manual),
+            (px4(2, 0), Kind::Manual),
+            (px4(7, 0), Kind::Manual),
+            (px4(1, 0), Kind::Manual),
+            (px4(5, 0), Kind::Manual),
+            (px4(4, 3), Kind::Other),
+            (px4(4, 2), Kind::Other),
+            (px4(4, 4), Kind::Other),
+            (px4(6, 0), Kind::Other),
+        ] {
+            assert_eq!(Flavour::Px4.kind(mode), kind, "{}", Flavour::Px4.mode_name(mode));
+            assert_eq!(Flavour::Generic.kind(mode), kind);
+        }
+        for (mode, kind) in [
+            (6, Kind::Return),
+            (21, Kind::Return),
+            (27, Kind::Return),
+            (9, Kind::Land),
+            (0, Kind::Manual),
+            (2, Kind::Manual),
+            (5, Kind::Manual),
+            (16, Kind::Manual),
+            (4, Kind::Other),
+            (3, Kind::Other),
+            (17, Kind::Other),
+        ] {
+            assert_eq!(
+                Flavour::ArduPilot.kind(mode),
+                kind,
+                "{}",
+                Flavour::ArduPilot.mode_name(mode)
+            );
+        }
+        // ArduPilot's numbers mean nothing to PX4 and back.
+        assert_eq!(Flavour::Px4.kind(6), Kind::Other);
+        assert_eq!(Flavour::ArduPilot.kind(px4(4, 5)), Kind::Other);
     }
 }

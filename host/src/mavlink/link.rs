@@ -86,6 +86,9 @@ pub struct LinkConfig {
     pub wanted: Wanted,
     /// MAVLink 2 signing.
     pub signing: Option<SigningKey>,
+    /// lluavd's `max_alt`, m: the log says when the autopilot's own
+    /// return climbs higher (lluavd cannot clip it).
+    pub max_alt: f64,
 }
 
 /// The link to the autopilot.
@@ -97,6 +100,7 @@ pub struct Link {
     locks: Mutex<HashMap<u32, Arc<tokio::sync::Mutex<()>>>>,
     timing: Timing,
     own_system: Option<u8>,
+    max_alt: f64,
     clock: SharedClock,
     runtime: Handle,
     /// Every task the link runs, for [`Link::stop`].
@@ -125,6 +129,7 @@ impl Link {
             locks: Mutex::new(HashMap::new()),
             timing: cfg.timing,
             own_system: cfg.own_system,
+            max_alt: cfg.max_alt,
             clock,
             runtime: Handle::current(),
             tasks: Mutex::new(Vec::new()),
@@ -325,5 +330,31 @@ async fn request_rates(link: Arc<Link>) {
         tracing::info!("telemetry rates set");
     } else {
         tracing::info!(refused = %refused.join("; "), "some telemetry rates were not set");
+    }
+    read_rtl_alt(&link).await;
+}
+
+/// Reads the altitude the autopilot's return climbs to (`rtl` answers
+/// it; later `PARAM_VALUE`s of it keep it current) and says in the log
+/// when it is above lluavd's `max_alt`: the autopilot's RTL, whoever
+/// starts it, climbs there, and lluavd cannot clip it.
+async fn read_rtl_alt(link: &Arc<Link>) {
+    let Some(flavour) = link.with(|k| k.tel().flavour()) else {
+        return;
+    };
+    let (name, _) = flavour.rtl_alt_param();
+    if let Err(e) = protocol::read_param(&**link, link.timing(), name).await {
+        tracing::info!(param = name, error = %e, "the autopilot's RTL altitude is unknown");
+        return;
+    }
+    match link.with(|k| k.tel().rtl_alt()) {
+        Some(alt) if f64::from(alt) > link.max_alt => tracing::warn!(
+            param = name,
+            rtl_alt = alt,
+            max_alt = link.max_alt,
+            "the autopilot's RTL climbs above max_alt: lluavd cannot clip it; set {name} lower on the autopilot"
+        ),
+        Some(alt) => tracing::info!(param = name, rtl_alt = alt, "the autopilot's RTL altitude"),
+        None => {}
     }
 }

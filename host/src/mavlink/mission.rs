@@ -15,7 +15,7 @@ use super::geo::Global;
 use super::protocol::mission_item;
 use crate::vehicle::Ned;
 
-/// Most missions kept; the oldest go first.
+/// Most missions kept; the oldest go first, never the one running.
 const MAX_KEPT: usize = 64;
 
 /// A waypoint of a submitted mission.
@@ -92,10 +92,22 @@ impl Missions {
             first_seq,
         });
         self.submitted.retain(|m| m.ext_id != mission.ext_id);
-        if self.submitted.len() == MAX_KEPT {
-            self.submitted.pop_front();
+        let running = self.running();
+        if self.submitted.len() >= MAX_KEPT
+            && let Some(oldest) = self.submitted.iter().position(|m| Some(m.ext_id) != running)
+        {
+            self.submitted.remove(oldest);
         }
         self.submitted.push_back(mission);
+    }
+
+    /// The external id of the mission whose run has not ended, if any (the
+    /// caller knows whether the vehicle still flies it).
+    pub fn running(&self) -> Option<u32> {
+        self.run
+            .as_ref()
+            .filter(|r| r.status == Status::Running)
+            .map(|r| r.plan.ext_id)
     }
 
     /// `plan` is what the autopilot holds now.
@@ -380,6 +392,30 @@ mod tests {
             seq: 2,
         }));
         assert_eq!(m.run.as_ref().unwrap().status, Status::Completed);
+    }
+
+    #[test]
+    fn a_full_store_keeps_the_mission_that_runs() {
+        let mut m = Missions::default();
+        let mission = |ext_id| Mission {
+            ext_id,
+            waypoints: vec![wp(1, 0.0, 0.0, -1.0)],
+        };
+        m.uploaded(mission(7000), 0);
+        m.start_run(OnAutopilot {
+            ext_id: 7000,
+            wp_ids: vec![1],
+            first_seq: 0,
+        });
+        assert_eq!(m.running(), Some(7000));
+        for ext_id in 1..=u32::try_from(MAX_KEPT).unwrap() {
+            m.uploaded(mission(ext_id), 0);
+        }
+        assert_eq!(m.submitted.len(), MAX_KEPT);
+        assert!(m.select(7000, &[1]).is_ok(), "the running mission stays");
+        assert!(m.select(1, &[1]).is_err(), "the oldest other went");
+        m.drop_run();
+        assert_eq!(m.running(), None);
     }
 
     #[test]

@@ -17,15 +17,15 @@
 //!
 //! | command | MAVLink |
 //! |---|---|
-//! | `state` | the cache: `armed` (heartbeat), `fsm` (from armed, `EXTENDED_SYS_STATE` and the mode), `position`/`velocity` (`LOCAL_POSITION_NED`), `yaw` (`ATTITUDE`), `altitude` (`GLOBAL_POSITION_INT.relative_alt`), `battery` (`BATTERY_STATUS`/`SYS_STATUS`), `setpoint` (the streamed one or null), `home` (`HOME_POSITION`, local), plus `link` (`up`/`lost`), `heartbeat_age_ms`, `autopilot`, `mode`, `landed`, `global`, `home_global`, `mission` (the run's progress) |
-//! | `takeoff` | ArduPilot: `DO_SET_MODE` GUIDED; then `COMPONENT_ARM_DISARM` (arm), `NAV_TAKEOFF` to the configured altitude above home (disarms again if the autopilot refuses it; never when its acknowledgement is lost); once it answers 0, `fsm` is `takeoff` and the vehicle counts as flying until the telemetry shows the climb, a heartbeat shows it disarmed or `land`/`disarm` answers 0 (at most 10 s) |
-//! | `land` | `NAV_LAND` |
-//! | `rtl` | `NAV_RETURN_TO_LAUNCH` |
-//! | `mrtl` | ArduPilot: `DO_SET_MODE` SMART_RTL; PX4: not supported (-2) |
+//! | `state` | the cache: `armed` (heartbeat), `fsm` (from armed, `EXTENDED_SYS_STATE` and the mode), `position`/`velocity` (`LOCAL_POSITION_NED`), `yaw` (`ATTITUDE`), `altitude` (`GLOBAL_POSITION_INT.relative_alt`), `battery` (`BATTERY_STATUS`/`SYS_STATUS`), `setpoint` (the streamed one or null), `home` (`HOME_POSITION`, local), plus `link` (`up`/`lost`), `heartbeat_age_ms`, `autopilot`, `mode`, `landed`, `global`, `home_global`, `mission` (the run's progress); `failsafe` (`authority`) and `control` as every backend |
+//! | `takeoff` | ArduPilot: `DO_SET_MODE` GUIDED; then `COMPONENT_ARM_DISARM` (arm), `NAV_TAKEOFF` to `takeoff_alt` above home clipped into `min_alt..=max_alt` (answered as `target_alt`; disarms again if the autopilot refuses it; never when its acknowledgement is lost); once it answers 0, `fsm` is `takeoff` and the vehicle counts as flying until the telemetry shows the climb, a heartbeat shows it disarmed or `land`/`disarm` answers 0 (at most 10 s) |
+//! | `land` | `NAV_LAND`; the setpoint stream stops |
+//! | `rtl` | `NAV_RETURN_TO_LAUNCH`; the setpoint stream stops; answers `home` and `return_alt`, the autopilot's own RTL altitude (PX4 `RTL_RETURN_ALT`, ArduPilot `RTL_ALT`, read at link-up; null if unknown): lluavd cannot clip it, and logs a warning when it is above `max_alt` |
+//! | `mrtl` | ArduPilot: `DO_SET_MODE` SMART_RTL (the stream stops; `return_alt` null: it retraces the path flown); PX4: not supported (-2) |
 //! | `disarm` | `COMPONENT_ARM_DISARM` with the force flag (21196): motors stop, in the air too |
-//! | `set_sp_ned` | in the air only (-1 `Vehicle is not flying`): `SET_POSITION_TARGET_LOCAL_NED` (`MAV_FRAME_LOCAL_NED`, position + yaw) re-sent at 10 Hz, then `DO_SET_MODE` OFFBOARD (PX4) / GUIDED (ArduPilot) unless already in it; streaming stops when no session that set it is connected, or on `disarm`/`mw_exec` |
-//! | `mission` | mission upload (`MISSION_COUNT`, `MISSION_REQUEST_INT`, `MISSION_ITEM_INT`, `MISSION_ACK`) of `NAV_WAYPOINT`s, NED converted to global from `HOME_POSITION` (altitude relative to home; ArduPilot's item 0 is home); a lost final `MISSION_ACK` is resolved by reading the mission count back (`MISSION_REQUEST_LIST`); requests past the end are ignored; nothing is ever cancelled |
-//! | `mw_exec` | in the air only: uploads the chosen waypoints unless they are what this autopilot holds (a new or rebooted autopilot holds none of them), `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
+//! | `set_sp_ned` | in the air only (-1 `Vehicle is not flying`), inside the envelope around `HOME_POSITION` (-2 `Invalid arguments: altitude 4 m above max_alt 3 m`; -1 while home is unknown): `SET_POSITION_TARGET_LOCAL_NED` (`MAV_FRAME_LOCAL_NED`, position + yaw) re-sent at 10 Hz, then `DO_SET_MODE` OFFBOARD (PX4) / GUIDED (ArduPilot) unless already in it, never out of a failsafe that holds; streaming stops when no session that set it is connected, on `land`/`rtl`/`mrtl`/`disarm`/`takeoff`/`mw_exec`, and when the autopilot leaves it for a failsafe mode |
+//! | `mission` | every waypoint inside the envelope around `HOME_POSITION` (-2 `Invalid arguments: waypoint 2: ...`); mission upload (`MISSION_COUNT`, `MISSION_REQUEST_INT`, `MISSION_ITEM_INT`, `MISSION_ACK`) of `NAV_WAYPOINT`s, NED converted to global from `HOME_POSITION` (altitude relative to home; ArduPilot's item 0 is home); a lost final `MISSION_ACK` is resolved by reading the mission count back (`MISSION_REQUEST_LIST`); requests past the end are ignored; nothing is ever cancelled |
+//! | `mw_exec` | in the air only, the waypoints checked again against the envelope around home now (it may have moved; -2 `Invalid arguments: waypoint 7: ...` by id): uploads the chosen waypoints unless they are what this autopilot holds (a new or rebooted autopilot holds none of them), `MISSION_SET_CURRENT`, `MISSION_START`; progress from `MISSION_CURRENT`/`MISSION_ITEM_REACHED` |
 //! | `mw_list`, `dump_missionresult` | the missions lluavd uploaded and the run's progress |
 //! | `param` | `PARAM_REQUEST_LIST`, missing indices read one by one |
 //! | `get_param`, `set_param` | `PARAM_REQUEST_READ` / `PARAM_SET` / `PARAM_VALUE` (integers bytewise on PX4, cast on ArduPilot, or as `AUTOPILOT_VERSION` announces) |
@@ -46,6 +46,23 @@
 //! clean up after a timeout. The companion computer's commands (files,
 //! logs, the machine) are answered by [`crate::companion`] as with the
 //! simulator.
+//!
+//! # Flight authority
+//!
+//! The core's gates (DESIGN.md, "Flight authority") need the failsafe
+//! from the vehicle; over MAVLink it is read from the heartbeats
+//! (`authority`): in the air, a return or land mode, or a pilot's mode,
+//! that lluavd did not ask for (or that was active when lluavd first saw
+//! the autopilot), or `system_status` CRITICAL/EMERGENCY. lluavd
+//! remembers what it asked for, so the modes that follow from its own
+//! commands never count; holds never do. While a failsafe holds, nothing
+//! lluavd sends for a motion command changes the mode (`DO_SET_MODE`,
+//! `NAV_TAKEOFF`, the mission start are checked again when sent);
+//! `control_take failsafe` overrides it; a heartbeat saying disarmed ends
+//! it. The envelope is lluavd's own ([`Limits`]: `min_alt`, `max_alt`,
+//! `geofence_radius` around `HOME_POSITION`, config keys and flags); the
+//! autopilot's geofence and RTL altitude are the autopilot's, and lluavd
+//! cannot clip them.
 //!
 //! # The radio link
 //!
@@ -75,9 +92,13 @@
 //! SMART_RTL, and `PREFLIGHT_STORAGE`'s read-back (param 1 = 0) which
 //! ArduPilot may refuse; every camera and gimbal command against a real
 //! camera or gimbal manager; the serial and TCP transports and their
-//! reconnection.
+//! reconnection; the modes a real autopilot enters on its own and the
+//! `system_status` it reports with them (PX4's failsafe actions, ArduPilot's
+//! failsafe options), and `RTL_RETURN_ALT`/`RTL_ALT` as they read on each
+//! release.
 
 mod answer;
+mod authority;
 pub mod autopilot;
 mod effect;
 mod error;
@@ -98,6 +119,7 @@ mod transport;
 /// protocols over any [`fuzzing::Port`].
 #[cfg(feature = "fuzzing")]
 pub mod fuzzing {
+    pub use super::authority::Asked;
     pub use super::effect::Effect;
     pub use super::follow::Wanted;
     pub use super::protocol::{Heard, Incoming, Next, Port, Target, Timing, Upload, command, upload_mission};
@@ -111,7 +133,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use ::mavlink::dialects::ardupilotmega::MavCmd;
-use lluav_core::{Args, Clock, Command, CommandId, Context, Failure, Fields, Payload, SessionId};
+use lluav_core::{Args, Clock, Command, CommandId, Context, Failsafe, Failure, Fields, Payload, SessionId};
 
 pub use error::MavError;
 pub use follow::Wanted;
@@ -119,9 +141,11 @@ pub use protocol::Timing;
 pub use signing::SigningKey;
 
 use crate::files::Files;
-use crate::vehicle::mission::{self as mission_json, Fence};
+use crate::vehicle::envelope::Envelope;
+use crate::vehicle::mission::{self as mission_json};
 use crate::vehicle::{Ned, Progress, Refusal, Reply, Snapshot, Vehicle};
-use answer::{Acknowledged, Answer, Captured, Rebooting, Recording, Saved};
+use answer::{Acknowledged, Answer, Captured, Rebooting, Recording, Returning, Saved};
+use authority::Asked;
 use autopilot::{Flavour, Mode, Phase};
 use effect::Effect;
 use link::{Link, LinkConfig};
@@ -132,7 +156,78 @@ use state::Known;
 /// Largest mission file a client may point at, bytes.
 const MAX_MISSION_FILE: u64 = 1 << 20;
 /// Takeoff altitude above home when none is configured, metres.
-pub const DEFAULT_TAKEOFF_ALT: f32 = 2.5;
+pub const DEFAULT_TAKEOFF_ALT: f64 = 2.5;
+
+/// lluavd's own limits for the MAVLink vehicle (DESIGN.md, "Flight
+/// authority"; the simulator's are its parameters of the same names): the
+/// envelope around the autopilot's home every target is checked against,
+/// the takeoff altitude (clipped into it) and how long control lasts
+/// without a request. The autopilot's own limits (its geofence, its RTL
+/// altitude) still apply on top, and are the autopilot's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Limits {
+    /// Lowest target altitude above home, m.
+    pub min_alt: f64,
+    /// Highest target altitude above home, m.
+    pub max_alt: f64,
+    /// Largest horizontal distance of a target from home, m.
+    pub geofence_radius: f64,
+    /// `takeoff` climbs this high above home (clipped into
+    /// `min_alt..=max_alt`), m.
+    pub takeoff_alt: f64,
+    /// Seconds without a request after which the session in control
+    /// loses it.
+    pub control_timeout_s: u32,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            min_alt: 0.5,
+            max_alt: 120.0,
+            geofence_radius: 500.0,
+            takeoff_alt: DEFAULT_TAKEOFF_ALT,
+            control_timeout_s: 30,
+        }
+    }
+}
+
+impl Limits {
+    /// Each limit within the range the simulator's parameter of the same
+    /// name allows, and an envelope that is not empty (`min_alt` below
+    /// `max_alt`); the reason names the setting.
+    pub fn check(&self) -> Result<(), String> {
+        let ranges = [
+            ("min_alt", self.min_alt, 0.2, 10.0),
+            ("max_alt", self.max_alt, 1.0, 500.0),
+            ("geofence_radius", self.geofence_radius, 1.0, 10_000.0),
+            ("takeoff_alt", self.takeoff_alt, 0.5, 120.0),
+            ("control_timeout", f64::from(self.control_timeout_s), 1.0, 3600.0),
+        ];
+        for (name, value, min, max) in ranges {
+            if !(min..=max).contains(&value) {
+                return Err(format!("{name} {value} out of range {min}..{max}"));
+            }
+        }
+        if self.min_alt >= self.max_alt {
+            return Err(format!(
+                "min_alt {} m not below max_alt {} m: no altitude would be left to fly",
+                self.min_alt, self.max_alt
+            ));
+        }
+        Ok(())
+    }
+
+    /// The envelope around `home` (local NED).
+    fn envelope(&self, home: Ned) -> Envelope {
+        Envelope {
+            home,
+            min_alt: self.min_alt,
+            max_alt: self.max_alt,
+            radius: self.geofence_radius,
+        }
+    }
+}
 
 /// How to reach the autopilot.
 #[derive(Clone, Debug, PartialEq)]
@@ -142,8 +237,9 @@ pub struct MavlinkConfig {
     pub address: String,
     /// Timeouts and retries.
     pub timing: Timing,
-    /// `takeoff` climbs this high above home, metres.
-    pub takeoff_alt: f32,
+    /// lluavd's limits: the envelope, the takeoff altitude, the control
+    /// timeout.
+    pub limits: Limits,
     /// lluavd's MAVLink system id; `None` takes the autopilot's (the
     /// companion-computer convention).
     pub own_system: Option<u8>,
@@ -159,7 +255,7 @@ impl MavlinkConfig {
         MavlinkConfig {
             address: address.into(),
             timing: Timing::default(),
-            takeoff_alt: DEFAULT_TAKEOFF_ALT,
+            limits: Limits::default(),
             own_system: None,
             wanted: Wanted::default(),
             signing: None,
@@ -170,7 +266,7 @@ impl MavlinkConfig {
 /// An autopilot over MAVLink.
 pub struct MavlinkVehicle {
     link: Arc<Link>,
-    takeoff_alt: f32,
+    limits: Limits,
 }
 
 impl std::fmt::Debug for MavlinkVehicle {
@@ -193,11 +289,12 @@ impl MavlinkVehicle {
             own_system: cfg.own_system,
             wanted: cfg.wanted,
             signing: cfg.signing,
+            max_alt: cfg.limits.max_alt,
         };
         let link = Link::open(link_cfg, Arc::new(clock)).await?;
         Ok(MavlinkVehicle {
             link,
-            takeoff_alt: cfg.takeoff_alt,
+            limits: cfg.limits,
         })
     }
 
@@ -266,19 +363,34 @@ impl MavlinkVehicle {
         Ok(self.pend(id, ops::command(Arc::clone(&self.link), cmd, params, None, then)))
     }
 
-    /// A flight command for a flying vehicle whose `effect` the telemetry
-    /// shows: the setpoint stream stops; `then` answers it once done.
-    fn redirect(
+    /// A conservative flight command (`land`, `rtl`, `mrtl`) for a flying
+    /// vehicle whose `effect` the telemetry shows: the setpoint stream
+    /// stops (the old pilot's setpoint no longer cancels it), the modes it
+    /// leads to are lluavd's own (`asked`) unless it fails; `then` answers
+    /// it once done. It runs in a failsafe too (DESIGN.md, "Flight
+    /// authority").
+    fn redirect<A: Answer>(
         &self,
         id: CommandId,
         ctx: &Context,
         (cmd, params): (MavCmd, [f32; 7]),
-        effect: impl FnOnce(Flavour) -> Effect,
-        then: impl Then<Acknowledged>,
+        (effect, asked): (impl FnOnce(Flavour) -> Effect, Asked),
+        then: impl Then<A>,
     ) -> Result<Progress, MavError> {
         let flavour = self.flying(ctx)?;
-        self.link.with(Known::stop_stream);
-        let op = ops::command(Arc::clone(&self.link), cmd, params, Some(effect(flavour)), then);
+        self.link.with(|k| {
+            k.stop_stream();
+            k.ask(asked, ctx.now_ms);
+        });
+        let link = Arc::clone(&self.link);
+        let effect = effect(flavour);
+        let op = async move {
+            let done = ops::command(Arc::clone(&link), cmd, params, Some(effect), then).await;
+            if done.is_err() {
+                link.with(|k| k.unask(asked));
+            }
+            done
+        };
         Ok(self.pend(id, op))
     }
 
@@ -299,17 +411,35 @@ impl MavlinkVehicle {
             }
             (C::Takeoff, _) => {
                 let flavour = self.link_up(ctx)?;
-                link.with(Known::stop_stream);
-                Ok(self.pend(cmd.id(), ops::takeoff(link, flavour, self.takeoff_alt)))
+                // Home is where the vehicle stands; only the altitude is
+                // clipped, never refused.
+                let alt = self.limits.envelope(Ned::default()).clip(self.limits.takeoff_alt) as f32;
+                link.with(|k| {
+                    k.stop_stream();
+                    k.ask(Asked::Takeoff, ctx.now_ms);
+                });
+                Ok(self.pend(cmd.id(), ops::takeoff(link, flavour, alt)))
             }
             (C::Land, _) => {
                 let land = (MavCmd::MAV_CMD_NAV_LAND, [0.0, 0.0, 0.0, nan, nan, nan, nan]);
-                self.redirect(cmd.id(), ctx, land, Effect::Landing, ops::landing)
+                let effect = (Effect::Landing, Asked::Land);
+                self.redirect::<Acknowledged>(cmd.id(), ctx, land, effect, ops::landing)
             }
             (C::Rtl, _) => {
                 let rtl = (MavCmd::MAV_CMD_NAV_RETURN_TO_LAUNCH, [0.0; 7]);
-                let effect = |f| Effect::Phase(f, Phase::Rtl);
-                self.redirect(cmd.id(), ctx, rtl, effect, ops::acknowledged)
+                let effect = (|f| Effect::Phase(f, Phase::Rtl), Asked::Return);
+                let max_alt = self.limits.max_alt;
+                self.redirect(cmd.id(), ctx, rtl, effect, move |k: &mut Known, now| {
+                    let answer: Returning = ops::returning(k, now);
+                    if let Some(alt) = answer.return_alt.filter(|a| f64::from(*a) > max_alt) {
+                        tracing::warn!(
+                            return_alt = alt,
+                            max_alt,
+                            "the autopilot's RTL climbs above max_alt"
+                        );
+                    }
+                    answer
+                })
             }
             (C::Mrtl, _) => {
                 let flavour = self.flying(ctx)?;
@@ -317,8 +447,8 @@ impl MavlinkVehicle {
                     .set_mode_params(Mode::SmartRtl)
                     .ok_or(MavError::Unsupported)?;
                 let smart_rtl = (MavCmd::MAV_CMD_DO_SET_MODE, [p1, p2, p3, 0.0, 0.0, 0.0, 0.0]);
-                let effect = |f| Effect::Mode(f, Mode::SmartRtl);
-                self.redirect(cmd.id(), ctx, smart_rtl, effect, ops::acknowledged)
+                let effect = (|f| Effect::Mode(f, Mode::SmartRtl), Asked::Return);
+                self.redirect(cmd.id(), ctx, smart_rtl, effect, ops::retracing)
             }
             (C::Disarm, _) => {
                 self.link_up(ctx)?;
@@ -408,7 +538,14 @@ impl MavlinkVehicle {
         // As the simulator: setpoints move a flying vehicle (on PX4, OFFBOARD
         // on the ground would take off towards the setpoint when armed).
         let flavour = self.flying(ctx)?;
+        let (_, home) = self.home()?;
+        let target = Ned::new(pose.x.into(), pose.y.into(), pose.z.into());
+        self.limits
+            .envelope(home)
+            .check(target)
+            .map_err(|why| MavError::Invalid(why.to_string()))?;
         let in_mode = self.link.with(|k| {
+            k.ask(Asked::Setpoints, ctx.now_ms);
             k.stream(pose, ctx.session);
             k.tel()
                 .custom_mode()
@@ -436,7 +573,24 @@ impl MavlinkVehicle {
                 .read_mission_file(p, MAX_MISSION_FILE)
                 .map_err(|e| MavError::from_refusal(&e))?,
         };
-        let parsed = mission_json::parse(&text, &Fence::NONE).map_err(|e| MavError::from_refusal(&e))?;
+        let parsed = mission_json::parse(&text, &Envelope::NONE).map_err(|e| MavError::from_refusal(&e))?;
+        // The autopilot flies a run's items from what it holds: uploading
+        // that mission again would change them under the vehicle.
+        let running = self
+            .link
+            .with(|k| k.missions().running().filter(|_| k.fsm(ctx.now_ms) == "mission"));
+        if running == Some(ext_id) {
+            return Err(MavError::State(format!("Mission {ext_id} is running")));
+        }
+        let flavour = self.link_up(ctx)?;
+        let (home, home_local) = self.home()?;
+        // As the simulator's: waypoints named by their place in the list.
+        let envelope = self.limits.envelope(home_local);
+        for (n, w) in parsed.iter().enumerate() {
+            envelope
+                .check(w.ned())
+                .map_err(|why| MavError::Invalid(format!("waypoint {}: {why}", n + 1)))?;
+        }
         let waypoints: Vec<Waypoint> = parsed
             .iter()
             .map(|w| Waypoint {
@@ -445,8 +599,6 @@ impl MavlinkVehicle {
                 yaw: w.yaw,
             })
             .collect();
-        let flavour = self.link_up(ctx)?;
-        let (home, home_local) = self.home()?;
         let (items, first_seq) = mission::items(flavour, home, home_local, &waypoints);
         let op = ops::upload(
             Arc::clone(&self.link),
@@ -474,6 +626,14 @@ impl MavlinkVehicle {
         })?;
         let flavour = self.flying(ctx)?;
         let (home, home_local) = self.home()?;
+        // Checked again: home may have moved since the upload (PX4 sets it
+        // at every arming).
+        let envelope = self.limits.envelope(home_local);
+        for w in &selected {
+            envelope
+                .check(w.ned)
+                .map_err(|why| MavError::Invalid(format!("waypoint {}: {why}", w.id)))?;
+        }
         let (items, first_seq) = mission::items(flavour, home, home_local, &selected);
         let plan = mission::OnAutopilot {
             ext_id,
@@ -481,6 +641,7 @@ impl MavlinkVehicle {
             first_seq,
         };
         let upload = (on_autopilot.as_ref() != Some(&plan)).then_some(items);
+        self.link.with(|k| k.ask(Asked::Mission, ctx.now_ms));
         Ok(self.pend(CommandId::MwExec, ops::exec(Arc::clone(&self.link), plan, upload)))
     }
 }
@@ -550,6 +711,28 @@ impl Vehicle for MavlinkVehicle {
 
     fn session_closed(&mut self, session: SessionId) {
         self.link.with(|k| k.release(session));
+    }
+
+    fn failsafe(&self) -> Option<Failsafe> {
+        self.link.with(|k| k.failsafe())
+    }
+
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        // Like a pilot taking the sticks: nothing is sent, lluavd's own
+        // commands may change the mode again from now on.
+        if let Some(f) = self.link.with(Known::override_failsafe) {
+            tracing::warn!(failsafe = %f.reason(), "failsafe overridden by the session in control");
+        }
+        Ok(())
+    }
+
+    fn mission_running(&self) -> bool {
+        let now = self.link.now_ms();
+        self.link.with(|k| k.mission_running(now))
+    }
+
+    fn control_timeout_ms(&self) -> u32 {
+        self.limits.control_timeout_s.saturating_mul(1000)
     }
 
     fn write_state(&self, ctx: &Context, state: &mut Fields<'_>) {

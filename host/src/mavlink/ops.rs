@@ -10,7 +10,9 @@ use std::sync::Arc;
 use ::mavlink::dialects::ardupilotmega::MISSION_SET_CURRENT_DATA;
 use ::mavlink::dialects::ardupilotmega::{MISSION_ITEM_INT_DATA, MavCmd, MavMessage};
 
-use super::answer::{Acknowledged, Answer, Disarmed, Following, Param, Params, Started, TookOff, Uploaded};
+use super::answer::{
+    Acknowledged, Answer, Disarmed, Following, Param, Params, Returning, Started, TookOff, Uploaded,
+};
 use super::autopilot::{self, Flavour, Mode, ParamValue, Phase};
 use super::effect::Effect;
 use super::error::MavError;
@@ -43,6 +45,32 @@ pub async fn command<A: Answer>(
     Ok(link.with(|k| then(k, now)))
 }
 
+/// `rtl`'s answer: home, and the altitude the autopilot's return climbs
+/// to if lower (its own parameter; lluavd cannot clip it). ArduPilot's
+/// `RTL_ALT` 0 returns at the altitude it flies at.
+pub fn returning(known: &mut Known, now_ms: i64) -> Returning {
+    let tel = known.tel();
+    let return_alt = match (tel.flavour(), tel.rtl_alt()) {
+        (Some(Flavour::ArduPilot), Some(0.0)) => tel.altitude(),
+        (_, alt) => alt,
+    };
+    Returning {
+        fsm: known.fsm(now_ms),
+        home: tel.home_local(),
+        return_alt,
+    }
+}
+
+/// `mrtl`'s answer: home; SMART_RTL flies back along the path flown, with
+/// no altitude of its own to climb to.
+pub fn retracing(known: &mut Known, now_ms: i64) -> Returning {
+    Returning {
+        fsm: known.fsm(now_ms),
+        home: known.tel().home_local(),
+        return_alt: None,
+    }
+}
+
 /// The answer of a command whose response is the state it left.
 pub fn acknowledged(known: &mut Known, now_ms: i64) -> Acknowledged {
     Acknowledged {
@@ -57,9 +85,12 @@ pub fn landing(known: &mut Known, now_ms: i64) -> Acknowledged {
     acknowledged(known, now_ms)
 }
 
-/// Switches the flight mode.
+/// Switches the flight mode for a motion command (`takeoff`,
+/// `set_sp_ned`): never out of a failsafe that holds (DESIGN.md, "Flight
+/// authority"; `mrtl`, a conservative command, sends its own).
 pub async fn set_mode(link: &Link, flavour: Flavour, mode: Mode) -> Result<(), MavError> {
     let [p1, p2, p3] = flavour.set_mode_params(mode).ok_or(MavError::Unsupported)?;
+    link.with(|k| k.check_steering())?;
     let params = [p1, p2, p3, 0.0, 0.0, 0.0, 0.0];
     link.command(
         MavCmd::MAV_CMD_DO_SET_MODE,
@@ -85,6 +116,7 @@ pub async fn takeoff(link: Arc<Link>, flavour: Flavour, alt: f32) -> Result<Took
         Some(Effect::Armed(true)),
     )
     .await?;
+    link.with(|k| k.check_steering())?;
     // PX4 takes the takeoff altitude above mean sea level; ArduPilot above
     // home. NaN lets PX4 use its own MIS_TAKEOFF_ALT when home is unknown.
     let param7 = match (flavour, link.with(|k| k.tel().home_global())) {
@@ -192,6 +224,7 @@ pub async fn exec(
         link.with(|k| k.missions_mut().holds(plan.clone()));
     }
     let target = link.target()?;
+    link.with(|k| k.check_steering())?;
     link.send(MavMessage::MISSION_SET_CURRENT(MISSION_SET_CURRENT_DATA {
         seq: plan.first_seq,
         target_system: target.system,

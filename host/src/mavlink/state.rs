@@ -1,7 +1,8 @@
 //! What lluavd knows of the autopilot it follows, behind one lock: which
 //! autopilot that is (`follow`), the telemetry cache, the setpoint it
 //! streams and the sessions that set it, the missions, a takeoff it was
-//! told of before the telemetry shows it, and the camera's counters.
+//! told of before the telemetry shows it, the failsafes (`authority`) and
+//! the camera's counters.
 //! Only methods change it, so every rule about it (what a packet may
 //! change, when the stream stops, what a new vehicle forgets) is written
 //! here once.
@@ -11,9 +12,11 @@ use std::net::SocketAddr;
 
 use ::mavlink::MavHeader;
 use ::mavlink::dialects::ardupilotmega::MavMessage;
-use lluav_core::{Fields, Pose, SessionId};
+use lluav_core::{Failsafe, Fields, Pose, SessionId};
 
 use super::answer::{Answer as _, Following, write_pose};
+use super::authority::{Asked, Look, Watch};
+use super::error::MavError;
 use super::follow::{Admit, Follow, Wanted};
 use super::mission::Missions;
 use super::protocol::Target;
@@ -58,6 +61,8 @@ pub struct Known {
     took_off_ms: Option<i64>,
     /// Packets dropped as foreign since the last [`Known::take_foreign`].
     foreign: u64,
+    /// The failsafes.
+    watch: Watch,
 }
 
 impl Known {
@@ -107,7 +112,39 @@ impl Known {
         if self.tel.airborne() || disarmed {
             self.took_off_ms = None;
         }
+        self.judge(now_ms);
         receipt
+    }
+
+    /// Looks at the autopilot for failsafes. One that takes the vehicle
+    /// off lluavd's setpoint stops the stream: nothing streams to a
+    /// vehicle that no longer follows it, and a pilot or ground station
+    /// switching back to offboard/GUIDED finds no old setpoint to fly to.
+    fn judge(&mut self, now_ms: i64) {
+        let (Some(flavour), Some(custom_mode), Some(status)) = (
+            self.tel.flavour(),
+            self.tel.custom_mode(),
+            self.tel.system_status(),
+        ) else {
+            return;
+        };
+        let look = Look {
+            flavour,
+            custom_mode,
+            status,
+            armed: self.tel.armed(),
+            airborne: self.airborne(now_ms),
+            now_ms,
+        };
+        if let Some(started) = self.watch.observe(&look)
+            && started.left_setpoints
+            && self.stream.take().is_some()
+        {
+            tracing::warn!(
+                failsafe = %started.failsafe.reason(),
+                "setpoint stream stopped: the vehicle left it"
+            );
+        }
     }
 
     /// Another vehicle (or the same one rebooted): nothing lluavd knew of
@@ -122,6 +159,9 @@ impl Known {
         self.missions.new_vehicle();
         self.recording = false;
         self.took_off_ms = None;
+        // What it is doing is seen afresh: a return or landing already
+        // active counts as its own.
+        self.watch = Watch::default();
     }
 
     /// How many entries what lluavd knows holds: message kinds counted,
@@ -209,6 +249,49 @@ impl Known {
     /// vehicle.
     pub fn airborne(&self, now_ms: i64) -> bool {
         self.taking_off(now_ms) || self.tel.airborne()
+    }
+
+    /// The failsafe, if one started and the vehicle has not been disarmed
+    /// since (DESIGN.md, "Flight authority").
+    pub fn failsafe(&self) -> Option<Failsafe> {
+        self.watch.failsafe()
+    }
+
+    /// The session in control overrides the failsafe.
+    pub fn override_failsafe(&mut self) -> Option<Failsafe> {
+        self.watch.override_failsafe()
+    }
+
+    /// lluavd is about to ask the autopilot for `asked` at `now_ms`: the
+    /// modes that follow are its own.
+    pub fn ask(&mut self, asked: Asked, now_ms: i64) {
+        self.watch.ask(asked, now_ms);
+    }
+
+    /// The command that asked for `asked` failed.
+    pub fn unask(&mut self, asked: Asked) {
+        self.watch.unask(asked);
+    }
+
+    /// Refuses a command that would change the flight (a mode change, a
+    /// takeoff, a mission start) while a failsafe holds: the failsafe
+    /// gate checked when the request came, this checks again when it is
+    /// sent, for one that started meanwhile.
+    pub fn check_steering(&self) -> Result<(), MavError> {
+        match self.watch.holds() {
+            Some(f) => Err(MavError::State(format!(
+                "{}{}{}",
+                lluav_core::error::messages::FAILSAFE_OPEN,
+                f.reason(),
+                lluav_core::error::messages::FAILSAFE_MOTION
+            ))),
+            None => Ok(()),
+        }
+    }
+
+    /// Whether a mission lluavd started is being flown.
+    pub fn mission_running(&self, now_ms: i64) -> bool {
+        self.missions.running().is_some() && self.fsm(now_ms) == "mission"
     }
 
     /// The setpoint streamed now, if any.

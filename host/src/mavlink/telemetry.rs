@@ -8,11 +8,11 @@ use ::mavlink::Message as _;
 use ::mavlink::dialects::ardupilotmega::{
     ATTITUDE_DATA, BATTERY_STATUS_DATA, EXTENDED_SYS_STATE_DATA, GLOBAL_POSITION_INT_DATA, HEARTBEAT_DATA,
     HOME_POSITION_DATA, LOCAL_POSITION_NED_DATA, MavLandedState, MavMessage, MavModeFlag,
-    MavProtocolCapability, SYS_STATUS_DATA,
+    MavProtocolCapability, MavState, SYS_STATUS_DATA,
 };
 use lluav_core::Fields;
 
-use super::autopilot::{Encoding, Flavour, Phase};
+use super::autopilot::{Encoding, Flavour, ParamValue, Phase};
 use super::geo::Global;
 use crate::vehicle::Ned;
 
@@ -45,6 +45,9 @@ pub struct Telemetry {
     battery: Option<BATTERY_STATUS_DATA>,
     /// The parameter encoding `AUTOPILOT_VERSION` announced.
     encoding: Option<Encoding>,
+    /// The altitude its return climbs to (if lower), m, from its
+    /// parameter's latest `PARAM_VALUE`.
+    rtl_alt: Option<f32>,
     /// Messages received from the autopilot, by type.
     counts: BTreeMap<&'static str, u64>,
     /// Distance flown while armed, metres.
@@ -83,6 +86,21 @@ impl Telemetry {
             MavMessage::ATTITUDE(m) => self.attitude = Some(m.clone()),
             MavMessage::EXTENDED_SYS_STATE(m) => self.extended = Some(m.clone()),
             MavMessage::BATTERY_STATUS(m) => self.battery = Some(m.clone()),
+            MavMessage::PARAM_VALUE(v) => {
+                // Whoever asked (lluavd at link-up, a client's get_param or
+                // set_param, another ground station), the value is the
+                // autopilot's.
+                if let Some(flavour) = self.flavour {
+                    let (name, per_metre) = flavour.rtl_alt_param();
+                    if v.param_id.to_str().is_ok_and(|n| n == name) {
+                        let alt = match self.encoding().decode(v.param_type, v.param_value) {
+                            ParamValue::Int(i) => i as f32,
+                            ParamValue::Float(f) => f,
+                        } / per_metre;
+                        self.rtl_alt = alt.is_finite().then_some(alt);
+                    }
+                }
+            }
             MavMessage::AUTOPILOT_VERSION(m) => {
                 let caps = m.capabilities;
                 self.encoding = if caps
@@ -118,6 +136,17 @@ impl Telemetry {
             .is_some_and(|hb| hb.base_mode.contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED))
     }
 
+    /// The heartbeat's `system_status`.
+    pub fn system_status(&self) -> Option<MavState> {
+        self.heartbeat.as_ref().map(|hb| hb.system_status)
+    }
+
+    /// The altitude above home the autopilot's return climbs to (if
+    /// lower), m, once its parameter was read.
+    pub fn rtl_alt(&self) -> Option<f32> {
+        self.rtl_alt
+    }
+
     /// The heartbeat's `custom_mode`.
     pub fn custom_mode(&self) -> Option<u32> {
         self.heartbeat.as_ref().map(|hb| hb.custom_mode)
@@ -148,6 +177,16 @@ impl Telemetry {
         self.local
             .as_ref()
             .map(|l| Ned::new(l.x.into(), l.y.into(), l.z.into()))
+    }
+
+    /// Altitude above home, m: `GLOBAL_POSITION_INT.relative_alt`, or the
+    /// local position's height.
+    pub fn altitude(&self) -> Option<f32> {
+        match (&self.global, &self.local) {
+            (Some(g), _) => Some(g.relative_alt as f32 / 1000.0),
+            (None, Some(l)) => Some(-l.z),
+            _ => None,
+        }
     }
 
     /// Heading, radians.
@@ -224,12 +263,7 @@ impl Telemetry {
                 .map(|l| Ned::new(l.vx.into(), l.vy.into(), l.vz.into())),
         );
         opt_f32(s, "yaw", self.yaw());
-        let altitude = match (&self.global, &self.local) {
-            (Some(g), _) => Some(g.relative_alt as f32 / 1000.0),
-            (None, Some(l)) => Some(-l.z),
-            _ => None,
-        };
-        opt_f32(s, "altitude", altitude);
+        opt_f32(s, "altitude", self.altitude());
         match self.battery_percent() {
             Some(p) => s.i64("battery", p.into()),
             None => s.null("battery"),
@@ -318,7 +352,9 @@ fn landed_name(l: MavLandedState) -> &'static str {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ::mavlink::dialects::ardupilotmega::{MavAutopilot, MavState, MavType, MavVtolState};
+    use ::mavlink::dialects::ardupilotmega::{
+        MavAutopilot, MavParamType, MavState, MavType, MavVtolState, PARAM_VALUE_DATA,
+    };
 
     fn heartbeat(autopilot: MavAutopilot, armed: bool, custom_mode: u32) -> MavMessage {
         let mut base_mode = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
@@ -351,6 +387,50 @@ mod tests {
         assert_eq!(t.flavour(), Some(Flavour::ArduPilot));
         assert!(t.armed());
         assert_eq!(t.total_messages(), 2);
+    }
+
+    fn param(name: &str, value: f32, ty: MavParamType) -> MavMessage {
+        MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+            param_value: value,
+            param_count: 1,
+            param_index: 0,
+            param_id: name.into(),
+            param_type: ty,
+        })
+    }
+
+    #[test]
+    fn the_return_altitude_is_the_autopilots_own_parameter_in_metres() {
+        let mut t = Telemetry::default();
+        // Before the heartbeat, nobody knows whose parameter it is.
+        t.observe(&param(
+            "RTL_RETURN_ALT",
+            30.0,
+            MavParamType::MAV_PARAM_TYPE_REAL32,
+        ));
+        assert_eq!(t.rtl_alt(), None);
+        t.observe(&heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, false, 0));
+        t.observe(&param(
+            "RTL_RETURN_ALT",
+            30.0,
+            MavParamType::MAV_PARAM_TYPE_REAL32,
+        ));
+        t.observe(&param(
+            "RTL_DESCEND_ALT",
+            10.0,
+            MavParamType::MAV_PARAM_TYPE_REAL32,
+        ));
+        assert_eq!(t.rtl_alt(), Some(30.0));
+        let mut t = Telemetry::default();
+        t.observe(&heartbeat(MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA, false, 0));
+        t.observe(&param("RTL_ALT", 1500.0, MavParamType::MAV_PARAM_TYPE_INT16));
+        assert_eq!(t.rtl_alt(), Some(15.0), "centimetres");
+        t.observe(&param(
+            "RTL_RETURN_ALT",
+            30.0,
+            MavParamType::MAV_PARAM_TYPE_REAL32,
+        ));
+        assert_eq!(t.rtl_alt(), Some(15.0), "not ArduPilot's parameter");
     }
 
     #[test]

@@ -380,9 +380,13 @@ where
                     None => {}
                 }
             }
+            let queued = !self.io.outbox.is_empty();
             if !self.io.flush(&limits).await {
                 debug!(peer = %self.peer, "replies not written; dropping the connection");
                 return Next::Ended;
+            }
+            if queued {
+                self.handler.written(&self.session);
             }
             tokio::select! {
                 biased;
@@ -504,7 +508,11 @@ where
 
     /// After queueing a frame: written now if enough are queued.
     async fn written(&mut self) -> Flow {
+        let queued = !self.io.outbox.is_empty();
         if self.io.flush_if_full(&self.limits).await {
+            if queued && self.io.outbox.is_empty() {
+                self.handler.written(&self.session);
+            }
             Flow::Continue
         } else {
             debug!(peer = %self.peer, "peer does not take replies; dropping it");

@@ -24,6 +24,7 @@ use lluav_core::websocket::handshake::{self as upgrade_check, Rejection, Request
 use super::handshake::{self, HeadError, Refusal};
 use super::report::{Offence, Reports};
 use super::slots::{Capacity, Full, Held, Pending, Slots};
+use super::subscriber;
 use super::{Handler, Http, LINGER, Limits, Policy};
 
 /// Everything a listener serves with.
@@ -139,7 +140,7 @@ pub async fn serve_stream<S, H>(
     let deadline = Instant::now() + config.limits.handshake_timeout;
     let shared = Shared::new(handler, config);
     let (pending, _) = shared.slots.begin(peer.ip());
-    upgrade(stream, peer, local, pending, deadline, &shared, stop).await;
+    upgrade(stream, None, peer, local, pending, deadline, &shared, stop).await;
 }
 
 /// A TCP connection: TLS first for `wss://`, then the upgrade.
@@ -157,8 +158,9 @@ async fn accept<H: Handler>(
     let Ok(local) = tcp.local_addr() else {
         return;
     };
+    let fd = Some(std::os::fd::AsRawFd::as_raw_fd(&tcp));
     let Some(acceptor) = shared.config.tls.clone() else {
-        upgrade(tcp, peer, local.ip(), pending, deadline, &shared, stop).await;
+        upgrade(tcp, fd, peer, local.ip(), pending, deadline, &shared, stop).await;
         return;
     };
     // Boxed: a TLS stream is kilobytes, and inline it would make every
@@ -172,6 +174,7 @@ async fn accept<H: Handler>(
         Ok(Ok(stream)) => {
             Box::pin(upgrade(
                 stream,
+                fd,
                 peer,
                 local.ip(),
                 pending,
@@ -187,9 +190,12 @@ async fn accept<H: Handler>(
 }
 
 /// Reads and judges the request head, answers it, and serves the session
-/// if it is an acceptable upgrade with a slot free.
+/// if it is an acceptable upgrade with a slot free. `fd` is the TCP
+/// socket under `stream`, when there is one.
+#[allow(clippy::too_many_arguments)]
 async fn upgrade<S, H>(
     mut stream: S,
+    fd: Option<std::os::fd::RawFd>,
     peer: SocketAddr,
     local: IpAddr,
     pending: Pending,
@@ -217,8 +223,13 @@ async fn upgrade<S, H>(
     };
     let leftover = buf.split_off(len);
     let rules = shared.config.policy.at(local, shared.config.tls.is_some());
-    let key = match upgrade_check::judge(&buf, &rules) {
-        Ok(Request::Upgrade(upgrade)) => *upgrade.key,
+    let (key, events) = match upgrade_check::judge(&buf, &rules) {
+        Ok(Request::Upgrade(upgrade))
+            if subscriber::is_events(upgrade.target) && !serves_events(&*shared.handler) =>
+        {
+            return answer_and_close(stream, &handshake::not_found(), deadline).await;
+        }
+        Ok(Request::Upgrade(upgrade)) => (*upgrade.key, subscriber::is_events(upgrade.target)),
         Ok(Request::Plain { method, target }) => {
             let answer = shared
                 .config
@@ -261,7 +272,29 @@ async fn upgrade<S, H>(
     }
     // The head is not needed for the session's whole life.
     drop(buf);
-    session(stream, peer, leftover, slot, shared, stop).await;
+    if events {
+        if let Some(fd) = fd {
+            subscriber::small_send_buffer(fd);
+        }
+        let cx = context(shared);
+        subscriber::serve(stream, leftover, peer, slot, cx, stop).await;
+    } else {
+        session(stream, peer, leftover, slot, shared, stop).await;
+    }
+}
+
+/// Whether `handler` serves the `/events` endpoint.
+fn serves_events<H: Handler>(handler: &H) -> bool {
+    handler.subscribe().is_some()
+}
+
+fn context<H: Handler>(shared: &Shared<H>) -> Context<'_, H> {
+    Context {
+        handler: &*shared.handler,
+        buffers: &shared.buffers,
+        limits: shared.config.limits,
+        reports: &shared.reports,
+    }
 }
 
 /// The session after its `101`.
@@ -276,13 +309,7 @@ async fn session<S, H>(
     S: AsyncRead + AsyncWrite + Unpin,
     H: Handler,
 {
-    let context = Context {
-        handler: &*shared.handler,
-        buffers: &shared.buffers,
-        limits: shared.config.limits,
-        reports: &shared.reports,
-    };
-    Connection::new(stream, leftover, peer, Some(slot), context)
+    Connection::new(stream, leftover, peer, Some(slot), context(shared))
         .run(stop)
         .await;
 }

@@ -30,6 +30,7 @@ pub mod policy;
 pub mod reader;
 pub mod report;
 pub mod slots;
+pub mod subscriber;
 pub mod tls;
 pub mod waiting;
 pub mod wire;
@@ -77,9 +78,22 @@ pub trait Handler: Send + Sync + 'static {
         out: &'o mut [u8],
     ) -> impl Future<Output = Outcome<'o>> + Send + 'o;
 
+    /// The replies queued for `session` were written to its socket (what
+    /// a reply caused may now be told to others: the events stream).
+    fn written(&self, session: &Self::Session) {
+        let _ = session;
+    }
+
     /// The connection of `session` has ended.
     fn closed(&self, session: Self::Session) {
         let _ = session;
+    }
+
+    /// A subscription to the vehicle's events, for an admitted session of
+    /// the `/events` endpoint ([`subscriber`]); `None` when this handler
+    /// has none (the endpoint then answers 404).
+    fn subscribe(&self) -> Option<crate::events::Subscriber> {
+        None
     }
 }
 

@@ -23,8 +23,10 @@
 //! [`lluav_core::Backend::password_changed`], and `admin_lock` and
 //! `admin_unlock` through [`lluav_core::Backend::lock_mode_changed`].
 //!
-//! The core answers `login`, `help`, `admin_lock` and `admin_unlock`
-//! itself; they never reach a backend.
+//! The core answers `login`, `help`, `admin_lock`, `admin_unlock`,
+//! `control`, `control_take` and `control_release` itself; they never
+//! reach a backend. The failsafe, the mission and the control timeout the
+//! core's gates ask for are the vehicle's.
 //!
 //! # The `state` object
 //! `{"state":{...}}` with, from the vehicle: `armed` (bool), `fsm` (the
@@ -45,9 +47,9 @@ pub mod route;
 
 use std::io;
 use std::panic::{self, AssertUnwindSafe};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use lluav_core::{Backend, Command, CommandId, Context, Failure, Fields, SessionId, Step, Ticket};
+use lluav_core::{Backend, Command, CommandId, Context, Failsafe, Failure, Fields, SessionId, Step, Ticket};
 
 use crate::companion::Companion;
 use crate::vehicle::{Progress, Refusal, Reply, Vehicle, Wait};
@@ -64,6 +66,8 @@ pub struct Onboard<V> {
     /// A waited-for command's reply, from the daemon to
     /// [`Backend::finish`] in the same critical section.
     arrived: Option<(Ticket, Reply)>,
+    /// Up to when both sides were advanced.
+    advanced: Instant,
 }
 
 impl<V: std::fmt::Debug> std::fmt::Debug for Onboard<V> {
@@ -84,6 +88,7 @@ impl<V: Vehicle> Onboard<V> {
             next_ticket: 1,
             waiting: None,
             arrived: None,
+            advanced: Instant::now(),
         }
     }
 
@@ -189,6 +194,22 @@ impl<V: Vehicle> Backend for Onboard<V> {
     fn session_closed(&mut self, session: SessionId) {
         self.vehicle.session_closed(session);
     }
+
+    fn failsafe(&self) -> Option<Failsafe> {
+        self.vehicle.failsafe()
+    }
+
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        self.vehicle.override_failsafe()
+    }
+
+    fn mission_running(&self) -> bool {
+        self.vehicle.mission_running()
+    }
+
+    fn control_timeout_ms(&self) -> u32 {
+        self.vehicle.control_timeout_ms()
+    }
 }
 
 impl<V: Vehicle> Onboard<V> {
@@ -197,6 +218,33 @@ impl<V: Vehicle> Onboard<V> {
     pub fn tick(&mut self, dt: Duration) {
         self.vehicle.tick(dt);
         self.companion.tick(dt, &self.vehicle.snapshot());
+    }
+
+    /// Advances both by the wall time since they were last advanced, up
+    /// to `now`: before every request (so that a vehicle left alone while
+    /// idle is current when asked) and on the daemon's timer while it
+    /// does something.
+    pub fn advance_to(&mut self, now: Instant) {
+        let dt = now.saturating_duration_since(self.advanced);
+        self.advanced = self.advanced.max(now);
+        if !dt.is_zero() {
+            self.tick(dt);
+        }
+    }
+
+    /// How soon [`Onboard::advance_to`] must run again for what goes on to
+    /// go on; `None` when nothing changes without a request.
+    pub fn next_tick(&self) -> Option<Duration> {
+        let recording = self.companion.recording().then_some(crate::vehicle::TICK);
+        match (self.vehicle.next_tick(), recording) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// What the vehicle told since the last call, in order.
+    pub fn drain_events(&mut self, out: &mut Vec<crate::events::Event>) {
+        self.vehicle.drain_events(out);
     }
 
     /// Persists what both sides hold pending.

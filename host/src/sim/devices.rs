@@ -127,6 +127,11 @@ impl Devices {
         });
     }
 
+    /// Whether the battery powers the vehicle (`bms_setpower`).
+    pub(crate) fn powered(&self) -> bool {
+        self.bms.power
+    }
+
     /// Whether the pad charges the battery.
     pub(crate) fn charging(&self) -> bool {
         self.bms.charging

@@ -8,6 +8,7 @@ use lluav_core::Ret;
 
 use crate::files;
 use crate::vehicle::Refusal;
+use crate::vehicle::envelope::Outside;
 use crate::vehicle::mission::BadMission;
 
 /// A command the simulated vehicle did not carry out.
@@ -16,6 +17,13 @@ pub enum SimError {
     /// The command moves a flying vehicle; this one is on the ground.
     #[error("Vehicle is not flying")]
     NotFlying,
+    /// Disarmed in the air: it falls until it hits the ground, and no
+    /// command can fly it meanwhile.
+    #[error("Vehicle is falling: it was disarmed in the air")]
+    Falling,
+    /// `bms_setpower 0`: the battery powers nothing, the motors included.
+    #[error("Battery power is off: bms_setpower 1 first")]
+    PowerOff,
     /// The vehicle sleeps; `wakeup` first.
     #[error("Vehicle is asleep: wakeup first")]
     Asleep,
@@ -66,6 +74,24 @@ pub enum SimError {
     /// A mission payload the simulator cannot fly.
     #[error(transparent)]
     Mission(#[from] BadMission),
+    /// A mission with this external id is running: its waypoints cannot
+    /// be replaced under the vehicle.
+    #[error("Mission {0} is running")]
+    MissionRunning(u32),
+    /// An abort id at or below the highest given out: ids are never
+    /// reused.
+    #[error(
+        "Invalid arguments: abort_id {id} is not above the last one given, {last} (abort ids are never reused)"
+    )]
+    AbortIdUsed {
+        /// The id asked for.
+        id: u32,
+        /// The highest id given so far.
+        last: u32,
+    },
+    /// The highest abort id was given out: no new one exists.
+    #[error("No abort_id is left: 4294967295 was given")]
+    AbortIdsSpent,
     /// No mission with this external id.
     #[error("Invalid arguments: unknown mission {0}")]
     UnknownMission(u32),
@@ -93,6 +119,10 @@ pub enum SimError {
 }
 
 impl SimError {
+    /// A target outside the envelope: -2 with the reason.
+    pub(crate) fn outside(why: Outside) -> SimError {
+        SimError::Refused(why.to_string())
+    }
     /// An I/O failure while doing `what`.
     pub(crate) fn io(what: impl Into<String>, err: std::io::Error) -> Self {
         SimError::Files(files::Error::io(what, err))
@@ -108,6 +138,7 @@ impl Refusal for SimError {
             | SimError::ParamRange { .. }
             | SimError::UnknownMission(_)
             | SimError::UnknownWaypoints { .. }
+            | SimError::AbortIdUsed { .. }
             | SimError::NotFound(_) => Ret::InvalidArgs,
             SimError::Mission(e) => e.ret(),
             SimError::Files(e) => e.ret(),

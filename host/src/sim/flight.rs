@@ -10,12 +10,15 @@
 //! Only [`Flight::takeoff`] leaves the ground: every other command that
 //! moves the vehicle ([`Flight::land`], [`Flight::track`],
 //! [`Flight::fly_route`], [`Flight::rtl`]) refuses a vehicle that is not in
-//! the air with [`SimError::NotFlying`] and changes nothing.
+//! the air with [`SimError::NotFlying`] and changes nothing. A vehicle
+//! disarmed in the air falls ([`Mode::Falling`]: gravity, no thrust) until
+//! it hits the ground; nothing flies it meanwhile.
 
 use std::collections::VecDeque;
 use std::f64::consts::PI;
 
 use super::error::{SimError, SimResult};
+use crate::events::Event;
 use crate::vehicle::Ned;
 
 /// Longest simulated step, s.
@@ -28,6 +31,8 @@ const DISARM_DELAY_S: f64 = 1.0;
 const LAND_BUDGET_S: f64 = 12.0;
 /// Battery charge rate on the pad while `bms_setcharge 1`, percent per minute.
 const CHARGE_RATE: f64 = 5.0;
+/// Gravity, m/s² (a vehicle disarmed in the air falls freely).
+const GRAVITY: f64 = 9.81;
 
 /// The FSM states, each with the data only it has.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,6 +53,8 @@ pub(crate) enum Mode {
     Rtl(Route),
     /// Asleep: low power, no takeoff until `wakeup`.
     Sleep,
+    /// Disarmed in the air: falling, motors off, until it hits the ground.
+    Falling,
 }
 
 impl Mode {
@@ -64,17 +71,25 @@ impl Mode {
             Mode::Landing { .. } => "landing",
             Mode::Rtl(_) => "rtl",
             Mode::Sleep => "sleep",
+            Mode::Falling => "falling",
         }
     }
 
     /// Whether the motors are armed.
     pub(crate) fn armed(&self) -> bool {
-        !matches!(self, Mode::Disarmed { .. } | Mode::Sleep)
+        !matches!(self, Mode::Disarmed { .. } | Mode::Sleep | Mode::Falling)
     }
 
-    /// Whether the vehicle is off the ground (or on its way up or down).
+    /// Whether the vehicle is off the ground (or on its way up or down,
+    /// falling included).
     pub(crate) fn airborne(&self) -> bool {
         !matches!(self, Mode::Disarmed { .. } | Mode::Armed { .. } | Mode::Sleep)
+    }
+
+    /// Whether it flies: in the air with its motors armed, so that the
+    /// commands that move a vehicle can move it.
+    pub(crate) fn flying(&self) -> bool {
+        self.armed() && self.airborne()
     }
 
     fn route(&self) -> Option<&Route> {
@@ -152,7 +167,7 @@ pub(crate) struct Limits {
     pub(crate) yaw_rate: f64,
     /// Waypoint acceptance radius, m.
     pub(crate) accept: f64,
-    /// RTL altitude above home, m.
+    /// RTL altitude above home (clipped into the envelope), m.
     pub(crate) rtl_alt: f64,
     /// Whether RTL lands at home.
     pub(crate) rtl_land: bool,
@@ -164,6 +179,62 @@ pub(crate) struct Limits {
     pub(crate) autosleep_after: Option<f64>,
     /// Whether the pad charges the battery.
     pub(crate) charging: bool,
+}
+
+/// Why the simulated vehicle acts on its own (DESIGN.md, "Flight
+/// authority": failsafes win).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Failsafe {
+    /// Below `low_battery` in the air: it returns home.
+    BatteryLow,
+    /// Empty in the air: it lands where it is.
+    BatteryEmpty,
+}
+
+/// The failsafe that started, and whether the session in control
+/// overrode it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Active {
+    pub(crate) reason: Failsafe,
+    pub(crate) overridden: bool,
+}
+
+impl Active {
+    /// The reason as `state.failsafe` and the failsafe event name it.
+    pub(crate) fn source(self) -> &'static str {
+        match self.reason {
+            Failsafe::BatteryLow => "battery_low",
+            Failsafe::BatteryEmpty => "battery_empty",
+        }
+    }
+
+    /// What the vehicle does.
+    pub(crate) fn action(self) -> lluav_core::Action {
+        match self.reason {
+            Failsafe::BatteryLow => lluav_core::Action::Rtl,
+            Failsafe::BatteryEmpty => lluav_core::Action::Land,
+        }
+    }
+
+    fn told(self) -> Event {
+        Event::Failsafe {
+            reason: Some(self.source().to_owned()),
+            action: self.action().name(),
+            overridden: self.overridden,
+        }
+    }
+}
+
+/// The battery's band for events: 0 at or above `low`, one more for each
+/// 10 % below it, `i32::MAX` when empty.
+fn band(battery: f64, low: f64) -> i32 {
+    if battery <= 0.0 {
+        i32::MAX
+    } else if battery >= low {
+        0
+    } else {
+        1 + ((low - battery) / 10.0).floor() as i32
+    }
 }
 
 /// Totals since start, for `statics`.
@@ -189,9 +260,14 @@ pub(crate) struct Flight {
     home: Ned,
     next_route: u64,
     battery: f64,
-    /// The low-battery RTL of this flight has happened (a setpoint may
-    /// override it; it is not forced again).
-    low_battery_handled: bool,
+    /// The failsafe of this flight, until the vehicle is disarmed on the
+    /// ground: each reason starts once, on entry.
+    failsafe: Option<Active>,
+    /// The battery's band: 0 above `low_battery`, then one more for each
+    /// 10 % below it, `i32::MAX` empty (a change is told).
+    band: i32,
+    /// What happened, to be told (DESIGN.md, "Events").
+    news: Vec<Event>,
     /// Waypoints reached since takeoff, for `mrtl`.
     trail: Vec<Ned>,
     events: Vec<RouteEvent>,
@@ -210,7 +286,9 @@ impl Default for Flight {
             home: Ned::default(),
             next_route: 1,
             battery: 100.0,
-            low_battery_handled: false,
+            failsafe: None,
+            band: 0,
+            news: Vec::new(),
             trail: Vec::new(),
             events: Vec::new(),
             totals: Totals::default(),
@@ -246,6 +324,31 @@ impl Flight {
     pub(crate) fn totals(&self) -> Totals {
         self.totals
     }
+    /// The failsafe of this flight, if one started.
+    pub(crate) fn failsafe(&self) -> Option<Active> {
+        self.failsafe
+    }
+    /// The session in control overrides the failsafe: it no longer refuses
+    /// motion commands (the vehicle goes on with what it does until told
+    /// otherwise); a different reason still starts a new one.
+    pub(crate) fn override_failsafe(&mut self) {
+        if let Some(f) = self.failsafe.as_mut() {
+            f.overridden = true;
+            let told = f.told();
+            self.news.push(told);
+        }
+    }
+
+    /// The failsafe is over (disarmed on the ground): told once.
+    fn end_failsafe(&mut self) {
+        if self.failsafe.take().is_some() {
+            self.news.push(Event::Failsafe {
+                reason: None,
+                action: "none",
+                overridden: false,
+            });
+        }
+    }
     /// Waypoint legs left in the active route.
     pub(crate) fn legs_left(&self) -> usize {
         self.mode.route().map_or(0, |r| r.legs.len())
@@ -258,16 +361,37 @@ impl Flight {
 
     /// Enters `mode`; a route the old mode was flying is dropped.
     fn enter(&mut self, mode: Mode) {
-        if let Some(r) = std::mem::replace(&mut self.mode, mode).route() {
+        if let Some(r) = self.switch(mode).route() {
             self.events.push(RouteEvent::Dropped { route: r.id });
         }
     }
 
+    /// Enters `mode` and tells the change of state (and of arming);
+    /// returns the mode left. Every change of mode goes through here.
+    fn switch(&mut self, mode: Mode) -> Mode {
+        let old = std::mem::replace(&mut self.mode, mode);
+        let (from, to) = (old.name(), self.mode.name());
+        if from != to {
+            self.news.push(Event::Fsm { from, to });
+        }
+        if old.armed() != self.mode.armed() {
+            self.news.push(Event::Armed {
+                armed: self.mode.armed(),
+            });
+        }
+        old
+    }
+
+    /// What happened since the last call, in order.
+    pub(crate) fn drain_news(&mut self, out: &mut Vec<Event>) {
+        out.append(&mut self.news);
+    }
+
     fn require_airborne(&self) -> SimResult {
-        if self.mode.airborne() {
-            Ok(())
-        } else {
-            Err(SimError::NotFlying)
+        match self.mode {
+            _ if self.mode.flying() => Ok(()),
+            Mode::Falling => Err(SimError::Falling),
+            _ => Err(SimError::NotFlying),
         }
     }
 
@@ -279,7 +403,7 @@ impl Flight {
         self.sp = Ned::new(self.pos.x, self.pos.y, self.pos.z.min(0.0) - alt);
         self.sp_yaw = self.yaw;
         self.totals.flights += 1;
-        self.low_battery_handled = false;
+        self.failsafe = None;
         self.trail.clear();
     }
 
@@ -302,36 +426,40 @@ impl Flight {
         Ok(())
     }
 
-    /// Disarms at once; a vehicle in the air drops to the ground.
+    /// Disarms at once; a vehicle in the air falls from where it is, with
+    /// the velocity it had, until it hits the ground.
     pub(crate) fn disarm(&mut self) {
         if self.mode.airborne() {
-            tracing::warn!(
-                altitude = format!("{:.2}", self.pos.up()),
-                "forced disarm in flight: vehicle dropped"
-            );
-        }
-        if self.mode != Mode::Sleep {
+            if self.mode != Mode::Falling {
+                tracing::warn!(
+                    altitude = format!("{:.2}", self.pos.up()),
+                    "forced disarm in flight: the vehicle falls"
+                );
+            }
+            self.enter(Mode::Falling);
+        } else if !matches!(self.mode, Mode::Sleep | Mode::Disarmed { .. }) {
             self.enter(Mode::LANDED);
+            self.vel = Ned::default();
         }
-        self.pos.z = 0.0;
-        self.vel = Ned::default();
-        self.sp = self.pos;
+        self.sp = Ned::new(self.pos.x, self.pos.y, 0.0);
     }
 
     /// Goes to sleep (only from the ground, disarmed); whether it did.
     pub(crate) fn sleep(&mut self) -> bool {
         let disarmed = matches!(self.mode, Mode::Disarmed { .. });
         if disarmed {
-            self.mode = Mode::Sleep;
+            self.switch(Mode::Sleep);
         }
         disarmed
     }
 
-    /// Wakes up from sleep; otherwise nothing changes.
-    pub(crate) fn wakeup(&mut self) {
-        if self.mode == Mode::Sleep {
-            self.mode = Mode::LANDED;
+    /// Wakes up from sleep; otherwise nothing changes. Whether it slept.
+    pub(crate) fn wakeup(&mut self) -> bool {
+        let asleep = self.mode == Mode::Sleep;
+        if asleep {
+            self.switch(Mode::LANDED);
         }
+        asleep
     }
 
     /// Tracks a new setpoint (offboard): hover towards it, ending any route
@@ -364,10 +492,11 @@ impl Flight {
         Ok(id)
     }
 
-    /// Returns home: climbs to `rtl_alt` if lower, flies home, then lands or
-    /// hovers. With `retrace`, first flies back through the waypoints
-    /// reached since takeoff, in reverse (mission RTL).
-    pub(crate) fn rtl(&mut self, lim: &Limits, retrace: bool) -> SimResult {
+    /// Returns home: climbs to `rtl_alt` (already clipped into the
+    /// envelope) if lower, flies home, then lands or hovers; returns the
+    /// altitude it returns at. With `retrace`, first flies back through the
+    /// waypoints reached since takeoff, in reverse (mission RTL).
+    pub(crate) fn rtl(&mut self, lim: &Limits, retrace: bool) -> SimResult<f64> {
         let alt = self.pos.up().max(lim.rtl_alt);
         let at_alt = |p: Ned| Leg::to(Ned::new(p.x, p.y, -alt));
         let mut legs = vec![at_alt(self.pos)];
@@ -376,7 +505,7 @@ impl Flight {
         }
         legs.push(at_alt(self.home));
         let then = if lim.rtl_land { Then::Land } else { Then::Hover };
-        self.fly_route(legs, then, true).map(drop)
+        self.fly_route(legs, then, true).map(|_| alt)
     }
 
     /// Moves the position estimate (map relocalisation on the ground).
@@ -414,18 +543,30 @@ impl Flight {
                 self.vel = Ned::default();
                 if *on_ground_s >= DISARM_DELAY_S {
                     tracing::info!("landed: disarmed");
-                    self.mode = Mode::LANDED;
+                    self.switch(Mode::LANDED);
                 }
             }
             Mode::Takeoff => self.climb(dt, lim),
             Mode::Hover => self.move_towards(dt, lim, lim.climb),
             Mode::Mission(_) | Mode::Rtl(_) => self.follow_route(dt, lim),
             &mut Mode::Landing { rate, spot } => self.descend(dt, lim, rate, spot),
+            Mode::Falling => self.fall(dt),
         }
         if self.mode.armed() {
             self.totals.armed_s += dt;
             self.battery = (self.battery - lim.drain * dt / 60.0).max(0.0);
             self.check_battery(lim);
+        } else if !self.mode.airborne() {
+            // Disarmed on the ground: whatever failsafe there was is over
+            // (a vehicle disarmed in the air is still falling).
+            self.end_failsafe();
+        }
+        let band = band(self.battery, lim.low_battery);
+        if band != self.band {
+            self.band = band;
+            self.news.push(Event::Battery {
+                percent: self.battery,
+            });
         }
     }
 
@@ -437,7 +578,7 @@ impl Flight {
         }
         if lim.autosleep_after.is_some_and(|t| idle_s >= t) {
             tracing::info!("auto-sleep after {idle_s:.0} s disarmed");
-            self.mode = Mode::Sleep;
+            self.switch(Mode::Sleep);
         }
     }
 
@@ -448,7 +589,7 @@ impl Flight {
                 altitude = format!("{:.2}", self.pos.up()),
                 "takeoff complete: hovering"
             );
-            self.mode = Mode::Hover;
+            self.switch(Mode::Hover);
         }
     }
 
@@ -458,7 +599,28 @@ impl Flight {
         if self.pos.z >= -1e-6 {
             self.pos.z = 0.0;
             self.vel = Ned::default();
-            self.mode = Mode::Armed { on_ground_s: 0.0 };
+            self.switch(Mode::Armed { on_ground_s: 0.0 });
+        }
+    }
+
+    /// Free fall: gravity alone, until the ground stops it.
+    fn fall(&mut self, dt: f64) {
+        self.vel.z += GRAVITY * dt;
+        self.pos = Ned::new(
+            self.pos.x + self.vel.x * dt,
+            self.pos.y + self.vel.y * dt,
+            self.pos.z + self.vel.z * dt,
+        );
+        self.sp = Ned::new(self.pos.x, self.pos.y, 0.0);
+        if self.pos.z >= 0.0 {
+            tracing::warn!(
+                speed = format!("{:.1}", self.vel.norm()),
+                "the falling vehicle hit the ground"
+            );
+            self.pos.z = 0.0;
+            self.vel = Ned::default();
+            self.sp = self.pos;
+            self.switch(Mode::LANDED);
         }
     }
 
@@ -469,16 +631,34 @@ impl Flight {
         ) {
             return;
         }
-        let low = self.battery < lim.low_battery && !self.low_battery_handled;
         if self.battery <= 0.0 {
-            tracing::warn!("battery empty: landing");
-            // Airborne by the check above, so landing cannot be refused.
-            let _ = self.land(lim);
-        } else if low && !matches!(self.mode, Mode::Rtl(_)) {
-            self.low_battery_handled = true;
+            if self.start(Failsafe::BatteryEmpty) {
+                tracing::warn!("battery empty: landing");
+                // Airborne by the check above, so landing cannot be refused.
+                let _ = self.land(lim);
+            }
+        } else if self.battery < lim.low_battery && self.start(Failsafe::BatteryLow) {
             tracing::warn!(battery = self.battery, "battery low: returning home");
-            let _ = self.rtl(lim, false);
+            if !matches!(self.mode, Mode::Rtl(_)) {
+                let _ = self.rtl(lim, false);
+            }
         }
+    }
+
+    /// Starts a failsafe for `reason`, unless it holds already (overridden
+    /// or not: a reason starts once) or a graver one does; whether it did.
+    fn start(&mut self, reason: Failsafe) -> bool {
+        let graver = |f: Active| f.reason == reason || f.reason == Failsafe::BatteryEmpty;
+        if self.failsafe.is_some_and(graver) {
+            return false;
+        }
+        let active = Active {
+            reason,
+            overridden: false,
+        };
+        self.failsafe = Some(active);
+        self.news.push(active.told());
+        true
     }
 
     fn follow_route(&mut self, dt: f64, lim: &Limits) {
@@ -520,9 +700,11 @@ impl Flight {
     /// Ends the route whose last target was `end`: hovers where it is, or
     /// lands on `end`.
     fn finish_route(&mut self, lim: &Limits, end: Ned) {
-        let Some(route) = std::mem::replace(&mut self.mode, Mode::Hover).route().cloned() else {
+        let Some(route) = self.mode.route().cloned() else {
             return;
         };
+        // Finished, not dropped: no `Dropped` for it.
+        self.switch(Mode::Hover);
         self.events.push(RouteEvent::Finished { route: route.id });
         self.sp = self.pos;
         if route.then == Then::Land {

@@ -5,25 +5,24 @@
 //! that reports it fits lluavd's 64 KiB response buffer: a mission holds
 //! at most [`crate::vehicle::mission::MAX_WAYPOINTS`] waypoints (`mw_list`
 //! lists one whole), at most [`MAX_MISSIONS`] missions are kept
-//! (`dump_missionlist` lists them all, paths included), a plan is at most
-//! [`MAX_PLAN`] bytes and a task name [`MAX_TASKNAME`] (`state` reports
-//! both).
+//! (`dump_missionlist` lists them all, paths included), and the core's
+//! grammar keeps a plan within [`lluav_core::parse::MAX_TEXT_LEN`] bytes
+//! and a task name within [`lluav_core::parse::MAX_TASK_NAME_LEN`]
+//! (`state` reports both).
 
 use lluav_core::{Args, Command, CommandId, Fields};
 
 use super::error::{SimError, SimResult};
 use super::flight::RouteEvent;
+use crate::events::{Event, MissionStatus};
 use crate::vehicle::mission::Waypoint;
 
-/// Most missions kept (the oldest go first): `dump_missionlist` of that
-/// many, each with a path of the longest, is under 36 KB.
+/// Most missions kept (the oldest go first, never the one running):
+/// `dump_missionlist` of that many, each with a path of the longest, is
+/// under 36 KB.
 pub(crate) const MAX_MISSIONS: usize = 16;
 /// Most runs and abort reports kept; the oldest go first.
 const MAX_KEPT: usize = 64;
-/// Longest plan, bytes.
-pub(crate) const MAX_PLAN: usize = 4096;
-/// Longest task name, bytes.
-pub(crate) const MAX_TASKNAME: usize = 256;
 
 /// Where a mission came from.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -39,7 +38,8 @@ pub(crate) enum Source {
 /// A submitted mission.
 #[derive(Clone, Debug)]
 pub(crate) struct Mission {
-    /// External id (`mission`), or 0 for an AI1 task.
+    /// External id (`mission`); an AI1 task has none (0 here, never shown:
+    /// its task id is in [`Source::Ai1`]).
     pub(crate) ext_id: u32,
     /// Where it came from.
     pub(crate) source: Source,
@@ -111,7 +111,7 @@ impl Run {
 /// An `abort_report`.
 #[derive(Clone, Debug)]
 pub(crate) struct AbortReport {
-    /// The id the client gave, or the next free one.
+    /// The id the client gave, or the one after the highest given so far.
     pub(crate) abort_id: u32,
     /// The run it ended, if one was running.
     pub(crate) ext_id: Option<u32>,
@@ -129,6 +129,9 @@ pub(crate) struct Missions {
     missions: Vec<Mission>,
     runs: Vec<Run>,
     reports: Vec<AbortReport>,
+    /// The highest abort id ever given out: ids only grow, so none is
+    /// given twice, even after its report was dropped.
+    last_abort_id: Option<u32>,
     /// The current task name.
     taskname: Option<String>,
     /// Obstacle mission live mode.
@@ -137,6 +140,8 @@ pub(crate) struct Missions {
     plan: Option<String>,
     /// Whether the plan lock is held.
     plan_locked: bool,
+    /// Runs' progress, to be told (DESIGN.md, "Events").
+    news: Vec<Event>,
 }
 
 /// Whether `b` replaces `a`: same external id, or same AI1 task id.
@@ -148,12 +153,13 @@ fn same_slot(a: &Mission, b: &Mission) -> bool {
     }
 }
 
-/// Refuses `text` longer than `most` bytes (-2).
-fn at_most(what: &str, text: &str, most: usize) -> SimResult {
-    if text.len() > most {
-        return Err(SimError::Refused(format!("{what} longer than {most} bytes")));
+/// The `ext_id` a mission is run by: `None` for an AI1 task, which has its
+/// own task id instead.
+fn ext_id_of(m: &Mission) -> Option<u32> {
+    match m.source {
+        Source::Ai1(_) => None,
+        Source::Json | Source::File(_) => Some(m.ext_id),
     }
-    Ok(())
 }
 
 fn push_bounded<T>(v: &mut Vec<T>, item: T, most: usize) {
@@ -170,7 +176,6 @@ impl Missions {
     pub(crate) fn run(&mut self, cmd: &Command<'_>, out: &mut Fields<'_>) -> SimResult {
         match (cmd.id(), cmd.args()) {
             (CommandId::Plan, Args::Text(plan)) => {
-                at_most("plan", plan, MAX_PLAN)?;
                 if self.plan_locked {
                     return Err(SimError::PlanLocked);
                 }
@@ -188,8 +193,7 @@ impl Missions {
                 out.bool("obs_mission", on);
             }
             (CommandId::DumpMissionresult, &Args::OptCount(ext_id)) => self.write_result(ext_id, out)?,
-            (CommandId::SetTaskname, Args::Text(name)) => {
-                at_most("task name", name, MAX_TASKNAME)?;
+            (CommandId::SetTaskname, Args::TaskName(name)) => {
                 self.taskname = Some((*name).to_owned());
                 out.str("taskname", name);
             }
@@ -210,11 +214,35 @@ impl Missions {
         }
     }
 
+    /// The external id of the mission a run is flying now, if any.
+    pub(crate) fn running(&self) -> Option<u32> {
+        self.runs
+            .iter()
+            .rev()
+            .find(|r| r.status == Status::Running)
+            .map(|r| r.ext_id)
+    }
+
     /// Stores a mission, replacing one with the same external id (or the
-    /// same AI1 task id).
-    pub(crate) fn submit(&mut self, mission: Mission) {
+    /// same AI1 task id): -1 for the mission that is running, whose
+    /// waypoints the vehicle is flying. When the store is full the oldest
+    /// mission goes, never the one running.
+    pub(crate) fn submit(&mut self, mission: Mission) -> SimResult {
+        let running = self.running();
+        if let Some(ext_id) = ext_id_of(&mission).filter(|&id| running == Some(id)) {
+            return Err(SimError::MissionRunning(ext_id));
+        }
         self.missions.retain(|m| !same_slot(m, &mission));
-        push_bounded(&mut self.missions, mission, MAX_MISSIONS);
+        if self.missions.len() >= MAX_MISSIONS
+            && let Some(oldest) = self
+                .missions
+                .iter()
+                .position(|m| running.is_none() || ext_id_of(m) != running)
+        {
+            self.missions.remove(oldest);
+        }
+        self.missions.push(mission);
+        Ok(())
     }
 
     /// The mission with this external id.
@@ -222,15 +250,17 @@ impl Missions {
         self.missions
             .iter()
             .rev()
-            .find(|m| m.ext_id == ext_id && !matches!(m.source, Source::Ai1(_)))
+            .find(|m| ext_id_of(m) == Some(ext_id))
             .ok_or(SimError::UnknownMission(ext_id))
     }
 
-    /// Writes the most recently submitted mission's id and waypoints.
+    /// Writes the most recently submitted mission's id (`task_id` for an
+    /// AI1 task) and waypoints.
     fn write_latest(&self, out: &mut Fields<'_>) {
         match self.missions.last() {
             Some(m) => {
-                out.u64("ext_id", m.ext_id.into()).array("waypoints", |a| {
+                m.write_id(out);
+                out.array("waypoints", |a| {
                     for wp in &m.waypoints {
                         a.object(|o| wp.write(o));
                     }
@@ -263,7 +293,17 @@ impl Missions {
 
     /// Records a new run.
     pub(crate) fn start_run(&mut self, run: Run) {
+        self.tell(run.ext_id, MissionStatus::Started);
         push_bounded(&mut self.runs, run, MAX_KEPT);
+    }
+
+    fn tell(&mut self, ext_id: u32, status: MissionStatus) {
+        self.news.push(Event::Mission { ext_id, status });
+    }
+
+    /// What happened to runs since the last call, in order.
+    pub(crate) fn drain_news(&mut self, out: &mut Vec<Event>) {
+        out.append(&mut self.news);
     }
 
     /// Applies the flight model's route events to the runs.
@@ -275,39 +315,66 @@ impl Missions {
             let Some(run) = self.runs.iter_mut().rev().find(|r| r.route == route) else {
                 continue;
             };
-            match *event {
-                RouteEvent::Reached { wp, .. } => run.reached.push(wp),
+            let count = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+            let told = match *event {
+                RouteEvent::Reached { wp, .. } => {
+                    run.reached.push(wp);
+                    Some(MissionStatus::Reached {
+                        wp,
+                        index: count(run.reached.len()),
+                        count: count(run.wp_ids.len()),
+                    })
+                }
                 RouteEvent::Finished { .. } if run.status == Status::Running => {
-                    run.status = Status::Completed
+                    run.status = Status::Completed;
+                    Some(MissionStatus::Completed)
                 }
                 RouteEvent::Dropped { .. } if run.status == Status::Running => {
-                    run.status = Status::Interrupted
+                    run.status = Status::Interrupted;
+                    Some(MissionStatus::Aborted)
                 }
-                _ => {}
+                _ => None,
+            };
+            if let Some(status) = told {
+                let ext_id = run.ext_id;
+                self.tell(ext_id, status);
             }
         }
     }
 
-    /// Marks the running run aborted and records a report.
-    pub(crate) fn abort(&mut self, abort_id: Option<u32>, now_ms: i64) -> AbortReport {
+    /// Marks the running run aborted and records a report under
+    /// `abort_id`, or the next id. An id is never given twice: one at or
+    /// below the highest given so far is refused (-2), and nothing is
+    /// aborted then.
+    pub(crate) fn abort(&mut self, abort_id: Option<u32>, now_ms: i64) -> SimResult<AbortReport> {
+        let abort_id = match (abort_id, self.last_abort_id) {
+            (Some(id), Some(last)) if id <= last => return Err(SimError::AbortIdUsed { id, last }),
+            (Some(id), _) => id,
+            (None, None) => 1,
+            (None, Some(last)) => last.checked_add(1).ok_or(SimError::AbortIdsSpent)?,
+        };
+        self.last_abort_id = Some(abort_id);
         let run = self.runs.last_mut().filter(|r| r.status == Status::Running);
         let (ext_id, reached, total) = match run {
             Some(r) => {
                 r.status = Status::Aborted;
+                self.news.push(Event::Mission {
+                    ext_id: r.ext_id,
+                    status: MissionStatus::Aborted,
+                });
                 (Some(r.ext_id), r.reached.len(), r.wp_ids.len())
             }
             None => (None, 0, 0),
         };
-        let next = self.reports.last().map_or(1, |r| r.abort_id.saturating_add(1));
         let report = AbortReport {
-            abort_id: abort_id.unwrap_or(next),
+            abort_id,
             ext_id,
             reached,
             total,
             at_ms: now_ms,
         };
         push_bounded(&mut self.reports, report.clone(), MAX_KEPT);
-        report
+        Ok(report)
     }
 
     /// Writes `mission_result` for `ext_id` (or the latest run): `null`
@@ -335,17 +402,28 @@ impl Missions {
         out.array("missions", |a| {
             for m in &self.missions {
                 a.object(|o| {
-                    o.u64("ext_id", m.ext_id.into())
-                        .u64("waypoints", m.waypoints.len() as u64);
+                    m.write_id(o);
+                    o.u64("waypoints", m.waypoints.len() as u64);
                     match &m.source {
                         Source::Json => o.str("source", "json"),
                         Source::File(p) => o.str("source", "file").str("path", p),
-                        Source::Ai1(task) => o.str("source", "ai1").str("task_id", task),
+                        Source::Ai1(_) => o.str("source", "ai1"),
                     };
                     o.i64("received_ms", m.received_ms);
                 });
             }
         });
+    }
+}
+
+impl Mission {
+    /// Writes what the mission is known by: `ext_id`, or an AI1 task's
+    /// own `task_id` (it has no external id: never a second `ext_id` 0).
+    fn write_id(&self, out: &mut Fields<'_>) {
+        match &self.source {
+            Source::Ai1(task) => out.str("task_id", task),
+            Source::Json | Source::File(_) => out.u64("ext_id", self.ext_id.into()),
+        };
     }
 }
 
@@ -368,13 +446,15 @@ impl AbortReport {
 mod tests {
     use super::*;
     use crate::vehicle::Ned;
-    use crate::vehicle::mission::{Fence, parse};
+    use crate::vehicle::envelope::Envelope;
+    use crate::vehicle::mission::parse;
 
-    fn fence() -> Fence {
-        Fence {
+    fn fence() -> Envelope {
+        Envelope {
             home: Ned::default(),
-            radius: 100.0,
+            min_alt: 0.5,
             max_alt: 50.0,
+            radius: 100.0,
         }
     }
 
@@ -390,7 +470,8 @@ mod tests {
             )
             .unwrap(),
             received_ms: 0,
-        });
+        })
+        .unwrap();
         assert_eq!(
             m.select(9, &[2, 1])
                 .unwrap()
@@ -407,5 +488,54 @@ mod tests {
             m.select(3, &[1]).unwrap_err().to_string(),
             "Invalid arguments: unknown mission 3"
         );
+    }
+
+    fn mission(ext_id: u32, source: Source) -> Mission {
+        Mission {
+            ext_id,
+            source,
+            waypoints: parse(r#"[{"x":1,"y":0,"z":-1},{"x":2,"y":0,"z":-1}]"#, &fence()).unwrap(),
+            received_ms: 0,
+        }
+    }
+
+    fn run(ext_id: u32) -> Run {
+        Run {
+            ext_id,
+            route: 1,
+            wp_ids: vec![1, 2],
+            reached: Vec::new(),
+            status: Status::Running,
+            started_ms: 0,
+        }
+    }
+
+    #[test]
+    fn a_full_store_drops_the_oldest_mission_but_never_the_running_one() {
+        let mut m = Missions::default();
+        m.submit(mission(7000, Source::Json)).unwrap();
+        m.start_run(run(7000));
+        for ext_id in 1..=u32::try_from(MAX_MISSIONS).unwrap() + 1 {
+            m.submit(mission(ext_id, Source::Json)).unwrap();
+        }
+        assert_eq!(m.missions.len(), MAX_MISSIONS);
+        assert!(m.get(7000).is_ok(), "the running mission stays");
+        assert!(m.get(1).is_err() && m.get(2).is_err(), "the oldest others went");
+        assert!(m.get(u32::try_from(MAX_MISSIONS).unwrap() + 1).is_ok());
+    }
+
+    #[test]
+    fn the_running_missions_ext_id_cannot_be_uploaded_again() {
+        let mut m = Missions::default();
+        m.submit(mission(7000, Source::Json)).unwrap();
+        m.start_run(run(7000));
+        let e = m.submit(mission(7000, Source::Json)).unwrap_err();
+        assert_eq!(e.to_string(), "Mission 7000 is running");
+        assert_eq!(lluav_core::Ret::Failed, crate::vehicle::Refusal::ret(&e));
+        m.submit(mission(7001, Source::Json)).unwrap();
+        // An AI1 task has no ext_id of its own: it never collides.
+        m.submit(mission(0, Source::Ai1("t1".into()))).unwrap();
+        m.apply(&[RouteEvent::Finished { route: 1 }]);
+        m.submit(mission(7000, Source::Json)).unwrap();
     }
 }

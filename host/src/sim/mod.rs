@@ -31,8 +31,9 @@ use std::time::Duration;
 
 use lluav_core::{Command, CommandId, Context, Failure, Fields, Section};
 
+use crate::events::Event;
 use crate::files::{Files, Saved};
-use crate::vehicle::{Progress, Refusal, Snapshot, Vehicle};
+use crate::vehicle::{Progress, Refusal, Snapshot, TICK, Vehicle};
 use camera::Camera;
 use devices::Devices;
 use error::{SimError, SimResult};
@@ -129,7 +130,7 @@ impl Simulator {
             land: p.f64(Key::LandSpeed),
             yaw_rate: p.f64(Key::YawRate),
             accept: p.f64(Key::AcceptRadius),
-            rtl_alt: p.f64(Key::RtlAlt),
+            rtl_alt: self.envelope().clip(p.f64(Key::RtlAlt)),
             rtl_land: p.flag(Key::RtlLand),
             drain: p.f64(Key::BatteryDrain),
             low_battery: p.f64(Key::LowBattery),
@@ -211,6 +212,49 @@ impl Vehicle for Simulator {
 
     fn write_state(&self, ctx: &Context, state: &mut Fields<'_>) {
         self.write_state_fields(ctx, state);
+    }
+
+    fn failsafe(&self) -> Option<lluav_core::Failsafe> {
+        let active = self.flight.failsafe()?;
+        Some(lluav_core::Failsafe {
+            overridden: active.overridden,
+            ..lluav_core::Failsafe::new(active.source(), active.action())
+        })
+    }
+
+    fn next_tick(&self) -> Option<Duration> {
+        let charging = self.devices.charging() && self.flight.battery() < 100.0;
+        match self.flight.mode() {
+            _ if charging => Some(TICK),
+            flight::Mode::Sleep => None,
+            &flight::Mode::Disarmed { idle_s } => self.switches.autosleep.then(|| {
+                let left = (self.params.f64(Key::AutosleepAfter) - idle_s).max(0.0) / self.speed;
+                Duration::from_secs_f64(left).max(TICK)
+            }),
+            _ => Some(TICK),
+        }
+    }
+
+    fn drain_events(&mut self, out: &mut Vec<Event>) {
+        // A run's progress first, then the FSM it moves: `reached` and
+        // `completed` before `mission -> hover`, `started` before
+        // `hover -> mission`.
+        self.missions.drain_news(out);
+        self.flight.drain_news(out);
+    }
+
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        tracing::warn!(failsafe = ?self.flight.failsafe(), "failsafe overridden by the session in control");
+        self.flight.override_failsafe();
+        Ok(())
+    }
+
+    fn mission_running(&self) -> bool {
+        matches!(self.flight.mode(), flight::Mode::Mission(_)) && self.missions.running().is_some()
+    }
+
+    fn control_timeout_ms(&self) -> u32 {
+        (self.params.f64(Key::ControlTimeout) * 1000.0) as u32
     }
 
     fn snapshot(&self) -> Snapshot {

@@ -11,7 +11,7 @@
 use std::io;
 use std::path::{Path, PathBuf};
 
-use lluav_core::number::format_f32;
+use lluav_core::number::{format_f32, parse_f32};
 use lluav_core::{Args, Command, CommandId, Fields, Number};
 
 use super::error::{SimError, SimResult};
@@ -67,6 +67,22 @@ impl Value {
                 "0" | "false" => Some((Value::Bool(false), None)),
                 _ => None,
             },
+        }
+    }
+
+    /// Whether `text`, which [`Value::parse_like`] refused, is a number
+    /// of this type's grammar that is too large for it (`1e39` for a
+    /// float, `99999999999999999999` for an integer): out of range, not
+    /// of the wrong type.
+    fn too_large(self, text: &str) -> bool {
+        let integer = |t: &str| {
+            let digits = t.strip_prefix('-').unwrap_or(t);
+            !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit())
+        };
+        match self {
+            Value::Int(_) => integer(text),
+            Value::Float(_) => parse_f32(text).is_some_and(f32::is_infinite),
+            Value::Bool(_) => false,
         }
     }
 
@@ -139,13 +155,15 @@ params! {
     AcceptRadius "accept_radius" Value::Float(0.3), 0.05..=10.0, "Distance at which a waypoint counts as reached, m.";
     RtlAlt "rtl_alt" Value::Float(10.0), 2.0..=120.0, "Altitude the vehicle climbs to (if lower) before returning home, m.";
     RtlLand "rtl_land" Value::Bool(true), 0.0..=1.0, "Whether RTL lands at home (otherwise it hovers there).";
-    MaxAlt "max_alt" Value::Float(120.0), 1.0..=500.0, "Highest setpoint or waypoint altitude above home, m.";
-    GeofenceRadius "geofence_radius" Value::Float(500.0), 1.0..=10000.0, "Largest horizontal distance from home of a setpoint or waypoint, m.";
+    MaxAlt "max_alt" Value::Float(120.0), 1.0..=500.0, "Highest target altitude above home (setpoints, waypoints, zyhk heights; takeoff and RTL climb at most this high), m.";
+    GeofenceRadius "geofence_radius" Value::Float(500.0), 1.0..=10000.0, "Largest horizontal distance from home of a target, m.";
     BatteryDrain "battery_drain" Value::Float(1.0), 0.0..=100.0, "Battery drain while armed, percent per minute.";
     LowBattery "low_battery" Value::Float(20.0), 0.0..=90.0, "Battery percentage below which a flying vehicle returns home.";
     ZyhkHover "zyhk_hover" Value::Float(5.0), 0.0..=600.0, "Hover time at each zyhk height, s.";
     AutosleepAfter "autosleep_after" Value::Int(300), 10.0..=86400.0, "Disarmed time before auto-sleep (when enabled), s.";
     MavlinkRate "mavlink_rate" Value::Int(50), 1.0..=400.0, "Rate of the simulated ATTITUDE stream, Hz.";
+    MinAlt "min_alt" Value::Float(0.5), 0.2..=10.0, "Lowest target altitude above home (setpoints, waypoints, zyhk heights; takeoff climbs at least this high), m.";
+    ControlTimeout "control_timeout" Value::Int(30), 1.0..=3600.0, "Seconds without a request after which the session in control loses it.";
 }
 
 /// The working and saved parameter values.
@@ -202,23 +220,54 @@ impl Params {
     /// unknown name, a value of the wrong type or out of range).
     fn set(&mut self, name: &str, text: &str) -> SimResult<Value> {
         let (def, _) = self.get(name)?;
-        let (value, sent) = def.default.parse_like(text).ok_or_else(|| SimError::ParamType {
+        let out_of_range = |value: String| SimError::ParamRange {
             name: name.into(),
-            expected: def.default.type_name(),
-            value: text.into(),
-        })?;
-        if let Some(n) = sent.filter(|n| !sent_in_range(def, n)) {
-            return Err(SimError::ParamRange {
+            value,
+            min: def.min,
+            max: def.max,
+        };
+        let Some((value, sent)) = def.default.parse_like(text) else {
+            if def.default.too_large(text) {
+                // Echoed as sent when short; a long one is only "too large".
+                let shown = if text.len() <= 24 {
+                    text
+                } else {
+                    "(a number too large)"
+                };
+                return Err(out_of_range(shown.into()));
+            }
+            return Err(SimError::ParamType {
                 name: name.into(),
-                value: n.to_string(),
-                min: def.min,
-                max: def.max,
+                expected: def.default.type_name(),
+                value: text.into(),
             });
+        };
+        if let Some(n) = sent.filter(|n| !sent_in_range(def, n)) {
+            return Err(out_of_range(n.to_string()));
         }
+        self.check_envelope(def.key, value.as_f64())?;
         if let Some(slot) = self.values.get_mut(def.key as usize) {
             *slot = value;
         }
         Ok(value)
+    }
+
+    /// The one relation between parameters `set_param` enforces: `min_alt`
+    /// stays below `max_alt`, or no target could be flown (DESIGN.md,
+    /// "Flight authority"). Every other relation is settled by clipping
+    /// (`takeoff_alt` and `rtl_alt` into the envelope).
+    fn check_envelope(&self, key: Key, value: f64) -> SimResult {
+        let (min, max) = match key {
+            Key::MinAlt => (value, self.f64(Key::MaxAlt)),
+            Key::MaxAlt => (self.f64(Key::MinAlt), value),
+            _ => return Ok(()),
+        };
+        if min < max {
+            return Ok(());
+        }
+        Err(SimError::Refused(format!(
+            "min_alt {min} m not below max_alt {max} m: no altitude would be left to fly"
+        )))
     }
 
     /// Every working value back to its default (not saved until `save`).
@@ -252,7 +301,11 @@ impl Params {
             (CommandId::SetParam, Args::SetParam { name, value }) => {
                 let v = self.set(name, value)?;
                 tracing::info!(param = name, value, "parameter set");
-                out.object("param", |o| v.write(o, name)).bool("unsaved", true);
+                // As get_param and save_param 0 say: setting the saved value
+                // back leaves nothing unsaved.
+                let (def, _) = self.get(name)?;
+                out.object("param", |o| v.write(o, name))
+                    .bool("unsaved", self.unsaved(def));
             }
             (CommandId::ResetParam, _) => {
                 self.reset();
@@ -330,6 +383,15 @@ fn read_file(file: &Path) -> io::Result<Vec<Value>> {
             }
         }
     }
+    let (min, max) = (
+        values[Key::MinAlt as usize].as_f64(),
+        values[Key::MaxAlt as usize].as_f64(),
+    );
+    if min >= max {
+        tracing::warn!(file = %file.display(), min_alt = min, max_alt = max, "saved min_alt not below max_alt: both back to their defaults");
+        values[Key::MinAlt as usize] = DEFS[Key::MinAlt as usize].default;
+        values[Key::MaxAlt as usize] = DEFS[Key::MaxAlt as usize].default;
+    }
     Ok(values)
 }
 
@@ -364,6 +426,21 @@ mod tests {
         );
         assert!(matches!(
             p.set("takeoff_alt", "NaN"),
+            Err(SimError::ParamType { .. })
+        ));
+        // Too large for its type is out of range, not of the wrong type.
+        assert_eq!(
+            p.set("takeoff_alt", "1e39").unwrap_err().to_string(),
+            "Invalid arguments: takeoff_alt 1e39 out of range 0.5..120"
+        );
+        assert_eq!(
+            p.set("autosleep_after", "99999999999999999999")
+                .unwrap_err()
+                .to_string(),
+            "Invalid arguments: autosleep_after 99999999999999999999 out of range 10..86400"
+        );
+        assert!(matches!(
+            p.set("autosleep_after", "1e3"),
             Err(SimError::ParamType { .. })
         ));
         assert_eq!(

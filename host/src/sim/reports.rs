@@ -13,7 +13,8 @@ use super::params::Key;
 use super::pilot::MAX_MISSION_FILE;
 use crate::files::Files;
 use crate::vehicle::Ned;
-use crate::vehicle::mission::{self, Fence};
+use crate::vehicle::envelope::{Envelope, Outside};
+use crate::vehicle::mission;
 
 /// Free space below which the disk preflight check fails, MiB.
 const MIN_FREE_MB: u64 = 100;
@@ -146,7 +147,7 @@ impl Simulator {
             sp.write(o);
             o.f32("yaw", yaw as f32);
         })
-        .bool("active", self.flight.mode().airborne());
+        .bool("active", self.flight.mode().flying());
     }
 
     pub(super) fn preflight_checks(&self, files: &Files) -> Vec<Check> {
@@ -200,24 +201,24 @@ impl Simulator {
     /// `test_wp` (one point) and `test_listwp` (every waypoint of a mission
     /// file) against the fence.
     pub(super) fn test_waypoints(&self, cmd: &Command<'_>, files: &Files, out: &mut Fields<'_>) -> SimResult {
-        let fence = self.fence();
+        let envelope = self.envelope();
         match cmd.args() {
             Args::Point(p) => {
                 let target = Ned::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
-                let verdict = fence.check(target);
+                let verdict = envelope.check(target);
                 let dist = distance(target, self.flight.pos());
                 out.bool("reachable", verdict.is_ok())
                     .f64("distance_m", round1(dist))
                     .f64("eta_s", round1(dist / self.params.f64(Key::CruiseSpeed)));
                 if let Err(why) = verdict {
-                    out.str("reason", &why);
+                    out.str("reason", &why.to_string());
                 }
             }
             Args::Path(path) => {
                 let text = files.read_mission_file(path, MAX_MISSION_FILE)?;
-                let verdicts: Vec<_> = mission::parse(&text, &Fence::NONE)?
+                let verdicts: Vec<_> = mission::parse(&text, &Envelope::NONE)?
                     .iter()
-                    .map(|w| (w.wp_id(), fence.check(w.ned())))
+                    .map(|w| (w.wp_id(), envelope.check(w.ned())))
                     .collect();
                 write_verdicts(&verdicts, out);
             }
@@ -227,14 +228,14 @@ impl Simulator {
     }
 }
 
-fn write_verdicts(verdicts: &[(u32, Result<(), String>)], out: &mut Fields<'_>) {
+fn write_verdicts(verdicts: &[(u32, Result<(), Outside>)], out: &mut Fields<'_>) {
     out.bool("reachable", verdicts.iter().all(|(_, v)| v.is_ok()))
         .array("waypoints", |a| {
             for (id, verdict) in verdicts {
                 a.object(|o| {
                     o.u64("id", (*id).into()).bool("reachable", verdict.is_ok());
                     if let Err(why) = verdict {
-                        o.str("reason", why);
+                        o.str("reason", &why.to_string());
                     }
                 });
             }

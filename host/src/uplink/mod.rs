@@ -90,6 +90,12 @@ pub trait Sessions: Send + Sync + 'static {
     /// `session` has ended.
     fn close(&self, session: Session);
 
+    /// The answer of `session`'s last request is on its way to the
+    /// broker: what it caused may be told now (the events stream).
+    fn answered(&self, session: lluav_core::SessionId) {
+        let _ = session;
+    }
+
     /// The whole `state` response, asked in `reporter`: a session the
     /// uplink keeps for its state topic, logged in here (with the
     /// vehicle's own password) when it must be.

@@ -22,7 +22,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use bytes::Bytes;
-use lluav_core::{Effect, Failure, Outcome, Ret, Session};
+use lluav_core::{Effect, Failure, Outcome, Ret, Session, SessionId};
 use rumqttc::v5::AsyncClient;
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::mqttbytes::v5::Publish;
@@ -130,6 +130,9 @@ impl Notes {
 struct Letter {
     topic: String,
     payload: Bytes,
+    /// The session whose request this answers, told once it is published
+    /// ([`Sessions::answered`]): what the request caused may be told then.
+    answers: Option<SessionId>,
 }
 
 impl Letter {
@@ -165,26 +168,47 @@ impl Outbox {
 
     /// Posts `payload` on `topic` if there is room.
     pub fn try_post(&self, topic: String, payload: Bytes) -> bool {
-        let letter = Letter { topic, payload };
+        self.try_post_letter(Letter {
+            topic,
+            payload,
+            answers: None,
+        })
+        .is_ok()
+    }
+
+    /// Posts `letter` if there is room; gives it back if not.
+    fn try_post_letter(&self, letter: Letter) -> Result<(), Letter> {
         let mut queue = self.queue();
         if !queue.0.is_empty() && queue.1 + letter.size() > self.limit {
-            return false;
+            return Err(letter);
         }
         queue.1 += letter.size();
         queue.0.push_back(letter);
         drop(queue);
         self.posted.notify_one();
-        true
+        Ok(())
     }
 
     /// Posts `payload` on `topic`, waiting for room.
     pub async fn post(&self, topic: String, payload: Bytes) {
+        self.post_answer(topic, payload, None).await;
+    }
+
+    /// Posts `payload` on `topic`, waiting for room; once it is published,
+    /// `answers` (if any) is told that its answer went out.
+    async fn post_answer(&self, topic: String, payload: Bytes, answers: Option<SessionId>) {
+        let mut letter = Letter {
+            topic,
+            payload,
+            answers,
+        };
         loop {
             let room = self.room.notified();
             tokio::pin!(room);
             room.as_mut().enable();
-            if self.try_post(topic.clone(), payload.clone()) {
-                return;
+            match self.try_post_letter(letter) {
+                Ok(()) => return,
+                Err(back) => letter = back,
             }
             room.await;
         }
@@ -435,6 +459,9 @@ pub async fn send<S: Sessions>(shared: Arc<Shared<S>>) {
             .client
             .publish_bytes(letter.topic, QoS::AtLeastOnce, false, letter.payload)
             .await;
+        if let Some(session) = letter.answers {
+            shared.sessions.answered(session);
+        }
     }
 }
 
@@ -443,6 +470,7 @@ pub async fn send<S: Sessions>(shared: Arc<Shared<S>>) {
 async fn serve<S: Sessions>(shared: &Shared<S>, take: Take, out: &mut [u8]) {
     let Take { client, job, session } = take;
     let session = session.unwrap_or_else(|| shared.sessions.open(Some(&client), shared.key(&client)));
+    let id = session.id();
     let cmd = command_id(&job.frame);
     // When the request came, on the wall clock (the store's clock).
     let at = unix_ms().saturating_sub(i64::try_from(shared.now().saturating_sub(job.at)).unwrap_or(0));
@@ -486,8 +514,14 @@ async fn serve<S: Sessions>(shared: &Shared<S>, take: Take, out: &mut [u8]) {
     // runs: whoever sent a repeat gets its answer before the next one's.
     let copies = shared.table().answered(&job, answer.clone());
     let topic = shared.topics.response(&client);
-    for _ in 0..=copies {
-        shared.outbox.post(topic.clone(), answer.clone()).await;
+    // The first tells the session that its answer went out (the events
+    // its request caused may follow it).
+    for copy in 0..=copies {
+        let answers = (copy == 0).then_some(id);
+        shared
+            .outbox
+            .post_answer(topic.clone(), answer.clone(), answers)
+            .await;
     }
     let ended = {
         let mut table = shared.table();

@@ -2,9 +2,13 @@
 //! (NED metres, yaw optional), as every vehicle reads it: the simulator
 //! flies it, the MAVLink vehicle turns it into mission items.
 
-use lluav_core::{Fields, Ret};
-use serde_json::{Map, Value};
+use std::collections::BTreeMap;
 
+use lluav_core::{Fields, Ret};
+use serde_json::Value;
+use serde_json::value::RawValue;
+
+use super::envelope::Envelope;
 use super::{Ned, Refusal};
 
 /// Most waypoints one mission may hold: `mw_list` of that many, every
@@ -63,79 +67,23 @@ impl Waypoint {
     }
 }
 
-/// Where the simulator may fly: a cylinder around home.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Fence {
-    /// Home.
-    pub(crate) home: Ned,
-    /// Largest horizontal distance from home, m.
-    pub(crate) radius: f64,
-    /// Highest altitude above home, m.
-    pub(crate) max_alt: f64,
-}
-
-impl Fence {
-    /// No limits at all.
-    pub(crate) const NONE: Fence = Fence {
-        home: Ned {
-            x: 0.0,
-            y: 0.0,
-            z: 0.0,
-        },
-        radius: f64::INFINITY,
-        max_alt: f64::INFINITY,
-    };
-
-    /// Why `p` is not flyable, if it is not. Coordinates are written as the
-    /// `f32` a client sends, and a huge or tiny number with an exponent
-    /// (`1e300`), so that a reason stays short whatever was sent.
-    pub(crate) fn check(&self, p: Ned) -> Result<(), String> {
-        let dist = (p.x - self.home.x).hypot(p.y - self.home.y);
-        if dist > self.radius {
-            return Err(format!(
-                "{} m from home, beyond geofence_radius {}",
-                short(format!("{dist:.1}"), dist),
-                self.radius
-            ));
-        }
-        if p.z > 0.0 {
-            let z = p.z as f32;
-            return Err(format!(
-                "z = {} is below the ground (NED: up is negative)",
-                short(z.to_string(), z)
-            ));
-        }
-        if -p.z > self.max_alt {
-            let alt = -p.z as f32;
-            return Err(format!(
-                "altitude {} m above max_alt {}",
-                short(alt.to_string(), alt),
-                self.max_alt
-            ));
-        }
-        Ok(())
-    }
-}
-
-/// `text`, the number `v` as usually written, unless it is long; then `v`
-/// with an exponent.
-fn short(text: String, v: impl std::fmt::LowerExp) -> String {
-    if text.len() <= 16 { text } else { format!("{v:e}") }
-}
-
 /// Reads DESIGN.md's mission JSON, `{"waypoints":[...]}` or a top-level
 /// array of waypoints, each an object `{"id":..,"x":..,"y":..,"z":..,"yaw":..}`
 /// (`id` and `yaw` optional), and checks every waypoint against the
-/// fence. Waypoints without an id get their 1-based position. Reasons
+/// envelope. Waypoints without an id get their 1-based position. Reasons
 /// name waypoints by position and members by the protocol's names, and
 /// never quote the text (it may come from a file).
-pub(crate) fn parse(text: &str, fence: &Fence) -> Result<Vec<Waypoint>, BadMission> {
+///
+/// The text is read in two steps: its syntax as a whole, then each
+/// member's value on its own, so that a number too large for its member
+/// (`1e400`) is refused as out of range at its waypoint, not as "not JSON".
+pub(crate) fn parse(text: &str, envelope: &Envelope) -> Result<Vec<Waypoint>, BadMission> {
     let bad = BadMission;
-    let json: Value = serde_json::from_str(text)
+    let top: &RawValue = serde_json::from_str(text)
         .map_err(|e| bad(format!("not JSON (line {}, column {})", e.line(), e.column())))?;
-    let list = match &json {
-        Value::Array(list) => list,
-        Value::Object(members) => waypoints_member(members).map_err(bad)?,
+    let list = match first_byte(top) {
+        b'[' => elements(top).map_err(bad)?,
+        b'{' => waypoints_member(&members(top).map_err(bad)?).map_err(bad)?,
         _ => {
             return Err(bad(
                 r#"a mission is {"waypoints":[...]} or an array of waypoints"#.into(),
@@ -156,7 +104,7 @@ pub(crate) fn parse(text: &str, fence: &Fence) -> Result<Vec<Waypoint>, BadMissi
         if !seen.insert(wp.id) {
             return Err(bad(format!("waypoint {n}: duplicate id {}", wp.id)));
         }
-        fence
+        envelope
             .check(wp.ned())
             .map_err(|why| bad(format!("waypoint {n}: {why}")))?;
         wps.push(wp);
@@ -164,48 +112,89 @@ pub(crate) fn parse(text: &str, fence: &Fence) -> Result<Vec<Waypoint>, BadMissi
     Ok(wps)
 }
 
+/// An object's members, their values unread.
+type Members<'a> = BTreeMap<String, &'a RawValue>;
+
+/// The first byte of a value: `{`, `[`, `"`, a digit or `-`, or a letter.
+fn first_byte(raw: &RawValue) -> u8 {
+    raw.get().trim_start().bytes().next().unwrap_or(0)
+}
+
+/// The elements of an array whose syntax was checked already.
+fn elements(raw: &RawValue) -> Result<Vec<&RawValue>, String> {
+    serde_json::from_str(raw.get()).map_err(|_| "not an array".into())
+}
+
+/// The members of an object whose syntax was checked already.
+fn members(raw: &RawValue) -> Result<Members<'_>, String> {
+    serde_json::from_str(raw.get()).map_err(|_| "not an object".into())
+}
+
 /// The `waypoints` array of a mission object, its only member.
-fn waypoints_member(members: &Map<String, Value>) -> Result<&Vec<Value>, String> {
+fn waypoints_member<'a>(members: &Members<'a>) -> Result<Vec<&'a RawValue>, String> {
     if members.keys().any(|k| k != "waypoints") {
         return Err(r#"unexpected member (a mission object has only "waypoints")"#.into());
     }
     match members.get("waypoints") {
-        Some(Value::Array(list)) => Ok(list),
+        Some(list) if first_byte(list) == b'[' => elements(list),
         Some(_) => Err(r#""waypoints" is not an array"#.into()),
         None => Err(r#"missing "waypoints""#.into()),
     }
 }
 
+/// A member's value read on its own: JSON's `null` is `None`; a number
+/// too large for a 64-bit float is out of range.
+fn number(members: &Members<'_>, key: &str) -> Result<Option<f64>, String> {
+    let Some(raw) = members.get(key) else {
+        return Ok(None);
+    };
+    match serde_json::from_str::<Value>(raw.get()) {
+        Ok(Value::Null) => Ok(None),
+        Ok(v) => v
+            .as_f64()
+            .map(Some)
+            .ok_or_else(|| format!(r#""{key}" is not a number"#)),
+        // The syntax was checked: what fails now is a number beyond f64.
+        Err(_) if matches!(first_byte(raw), b'-' | b'0'..=b'9') => Err(format!(
+            r#""{key}" out of range (a 64-bit float: -1.7976931348623157e308..1.7976931348623157e308)"#
+        )),
+        Err(_) => Err(format!(r#""{key}" is not a number"#)),
+    }
+}
+
 /// The waypoint at 1-based position `n`: an object, never an array read
 /// positionally.
-fn waypoint(item: &Value, n: usize) -> Result<Waypoint, String> {
+fn waypoint(item: &RawValue, n: usize) -> Result<Waypoint, String> {
     const MEMBERS: [&str; 5] = ["id", "x", "y", "z", "yaw"];
-    let Value::Object(members) = item else {
-        return Err(r#"not an object {"x":..,"y":..,"z":..}"#.into());
-    };
+    let not_an_object = || r#"not an object {"x":..,"y":..,"z":..}"#.to_owned();
+    if first_byte(item) != b'{' {
+        return Err(not_an_object());
+    }
+    let members = members(item).map_err(|_| not_an_object())?;
     if members.keys().any(|k| !MEMBERS.contains(&k.as_str())) {
         return Err(r#"unexpected member (a waypoint has "id", "x", "y", "z", "yaw")"#.into());
     }
-    let number = |key: &str| match members.get(key) {
-        Some(v) => v.as_f64().ok_or_else(|| format!(r#""{key}" is not a number"#)),
+    let required = |key: &str| match members.get(key) {
+        Some(_) => number(&members, key)?.ok_or_else(|| format!(r#""{key}" is not a number"#)),
         None => Err(format!(r#"missing "{key}""#)),
     };
     let id = match members.get("id") {
-        None | Some(Value::Null) => u32::try_from(n).unwrap_or(u32::MAX),
-        Some(v) => v
-            .as_u64()
-            .and_then(|id| u32::try_from(id).ok())
-            .ok_or(r#""id" is not an integer 0..4294967295"#)?,
+        None => u32::try_from(n).unwrap_or(u32::MAX),
+        Some(raw) => match serde_json::from_str::<Value>(raw.get()) {
+            Ok(Value::Null) => u32::try_from(n).unwrap_or(u32::MAX),
+            v => v
+                .ok()
+                .and_then(|v| v.as_u64())
+                .and_then(|id| u32::try_from(id).ok())
+                .ok_or(r#""id" is not an integer 0..4294967295"#)?,
+        },
     };
-    let yaw = match members.get("yaw") {
-        None | Some(Value::Null) => None,
-        Some(v) => Some(v.as_f64().ok_or(r#""yaw" is not a number"#)?),
-    };
+    let yaw = number(&members, "yaw")?;
     Ok(Waypoint {
         id,
-        x: number("x")?,
-        y: number("y")?,
-        z: number("z")?,
+        x: required("x")?,
+        y: required("y")?,
+        z: required("z")?,
         yaw,
     })
 }
@@ -214,9 +203,10 @@ fn waypoint(item: &Value, n: usize) -> Result<Waypoint, String> {
 mod tests {
     use super::*;
 
-    fn fence() -> Fence {
-        Fence {
+    fn fence() -> Envelope {
+        Envelope {
             home: Ned::default(),
+            min_alt: 0.5,
             radius: 100.0,
             max_alt: 50.0,
         }
@@ -299,24 +289,57 @@ mod tests {
             ("[]", "no waypoints"),
             (r#"{"takeoff_alt": 2.5"#, "not JSON (line 1, column 19)"),
             (
+                r#"[{"x":1e400,"y":0,"z":-2}]"#,
+                r#"waypoint 1: "x" out of range (a 64-bit float: -1.7976931348623157e308..1.7976931348623157e308)"#,
+            ),
+            (
+                r#"{"waypoints":[{"x":0,"y":0,"z":-1},{"x":0,"y":-2e999,"z":-2}]}"#,
+                r#"waypoint 2: "y" out of range (a 64-bit float: -1.7976931348623157e308..1.7976931348623157e308)"#,
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":-1,"yaw":1e309}]"#,
+                r#"waypoint 1: "yaw" out of range (a 64-bit float: -1.7976931348623157e308..1.7976931348623157e308)"#,
+            ),
+            (
+                r#"[{"id":1e400,"x":0,"y":0,"z":-1}]"#,
+                r#"waypoint 1: "id" is not an integer 0..4294967295"#,
+            ),
+            (
+                r#"[{"x":null,"y":0,"z":-1}]"#,
+                r#"waypoint 1: "x" is not a number"#,
+            ),
+            (r#"[{"x":1,"y":0,"z":-1}] x"#, "not JSON (line 1, column 24)"),
+            (
                 r#"[{"id":4,"x":0,"y":0,"z":-1},{"id":4,"x":0,"y":0,"z":-2}]"#,
                 "waypoint 2: duplicate id 4",
             ),
             (
                 r#"[{"x":0,"y":0,"z":2}]"#,
-                "waypoint 1: z = 2 is below the ground (NED: up is negative)",
+                "waypoint 1: altitude -2 m below min_alt 0.5 m",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":0}]"#,
+                "waypoint 1: altitude 0 m below min_alt 0.5 m",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":-0.0}]"#,
+                "waypoint 1: altitude 0 m below min_alt 0.5 m",
+            ),
+            (
+                r#"[{"x":0,"y":0,"z":-1e-50}]"#,
+                "waypoint 1: altitude 0 m below min_alt 0.5 m",
             ),
             (
                 r#"[{"x":1e300,"y":0,"z":-2}]"#,
-                "waypoint 1: 1e300 m from home, beyond geofence_radius 100",
+                "waypoint 1: distance from home 1e300 m beyond geofence_radius 100 m",
             ),
             (
                 r#"[{"x":0,"y":0,"z":-80}]"#,
-                "waypoint 1: altitude 80 m above max_alt 50",
+                "waypoint 1: altitude 80 m above max_alt 50 m",
             ),
             (
                 r#"[{"x":0,"y":0,"z":-1e30}]"#,
-                "waypoint 1: altitude 1e30 m above max_alt 50",
+                "waypoint 1: altitude 1e30 m above max_alt 50 m",
             ),
         ] {
             assert_eq!(refused(json), why, "{json}");

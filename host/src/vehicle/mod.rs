@@ -14,6 +14,7 @@
 //! This module sits at the bottom of the vehicle side: it depends on
 //! lluav-core and the data directory ([`crate::files`]) only.
 
+pub mod envelope;
 pub mod mission;
 
 use std::future::Future;
@@ -21,9 +22,12 @@ use std::io;
 use std::pin::Pin;
 use std::time::Duration;
 
-use lluav_core::{Command, Context, Failure, Fields, Ret, SessionId};
+use lluav_core::{Command, Context, Failsafe, Failure, Fields, Ret, SessionId};
 
 use crate::files::{self, Files};
+
+/// How often a vehicle that is doing something is advanced.
+pub const TICK: Duration = Duration::from_millis(50);
 
 /// A point or vector in NED metres (x north, y east, z down).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -120,6 +124,28 @@ pub trait Vehicle: Send + 'static {
         let _ = session;
     }
 
+    /// The failsafe that holds now, if any (as
+    /// [`lluav_core::Backend::failsafe`]).
+    fn failsafe(&self) -> Option<Failsafe> {
+        None
+    }
+
+    /// The session in control overrides the current failsafe (as
+    /// [`lluav_core::Backend::override_failsafe`]).
+    fn override_failsafe(&mut self) -> Result<(), Failure> {
+        Ok(())
+    }
+
+    /// Whether a mission is running (`abort_report` would stop it).
+    fn mission_running(&self) -> bool {
+        false
+    }
+
+    /// How long control lasts without a request from its session, ms.
+    fn control_timeout_ms(&self) -> u32 {
+        lluav_core::DEFAULT_CONTROL_TIMEOUT_MS
+    }
+
     /// Writes the vehicle's members of the `state` object: at least
     /// `armed`, `fsm` and `lock_mode` (see [`crate::onboard`]).
     fn write_state(&self, ctx: &Context, state: &mut Fields<'_>);
@@ -129,6 +155,20 @@ pub trait Vehicle: Send + 'static {
 
     /// Advances the vehicle by `dt` of wall time.
     fn tick(&mut self, dt: Duration);
+
+    /// How soon the vehicle must be advanced again for what it does to go
+    /// on (a climb, a charge, an auto-sleep countdown); `None` while
+    /// nothing changes without a command. An idle vehicle costs nothing:
+    /// the daemon then advances it only when a request comes.
+    fn next_tick(&self) -> Option<Duration> {
+        Some(TICK)
+    }
+
+    /// What happened since the last call, as events (DESIGN.md,
+    /// "Events"), in the order it happened.
+    fn drain_events(&mut self, out: &mut Vec<crate::events::Event>) {
+        let _ = out;
+    }
 
     /// Persists anything pending.
     fn flush(&mut self) -> io::Result<()> {

@@ -171,6 +171,7 @@ pub fn build<'a>(grammar: Grammar, params: &'a [Param], values: &'a [Value]) -> 
         Grammar::OptName => Args::OptName(v.opt_str(0)?),
         Grammar::Path => Args::Path(v.str(0)?),
         Grammar::Text => Args::Text(v.str(0)?),
+        Grammar::TaskName => Args::TaskName(v.str(0)?),
         Grammar::Secret => Args::Secret(v.str(0)?),
         Grammar::NewPassword => Args::NewPassword(v.str(0)?),
         Grammar::ParamName => Args::ParamName(v.str(0)?),
@@ -234,6 +235,7 @@ pub fn values<'py>(py: Python<'py>, args: &Args<'_>) -> PyResult<Vec<Bound<'py, 
         Args::Name(v)
         | Args::Path(v)
         | Args::Text(v)
+        | Args::TaskName(v)
         | Args::Secret(v)
         | Args::NewPassword(v)
         | Args::ParamName(v) => vec![s(v)],

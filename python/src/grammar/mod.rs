@@ -103,6 +103,7 @@ fn grammar_params(grammar: Grammar) -> Vec<Param> {
         Grammar::OptName => vec![opt("name", Str)],
         Grammar::Path => vec![req("path", Str)],
         Grammar::Text => vec![req("text", Str)],
+        Grammar::TaskName => vec![req("name", Str)],
         Grammar::Secret => vec![req("password", Str)],
         Grammar::NewPassword => vec![req("new_password", Str)],
         Grammar::ParamName => vec![req("name", Str)],

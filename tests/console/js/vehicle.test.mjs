@@ -7,12 +7,16 @@ import assert from 'node:assert/strict';
 import { readdirSync, readFileSync } from 'node:fs';
 
 import {
-  decimal, FIELDS, readCommands, readLogin, readMission, readState, setpointLine,
+  decimal, FIELDS, readCommands, readControl, readControlAnswer, readFailsafe, readLogin, readMission, readState,
+  setpointLine,
 } from '../../../host/console/vehicle.js';
 
 const DIR = new URL('../answers/', import.meta.url);
 const answer = (name) => JSON.parse(readFileSync(new URL(`${name}.json`, DIR), 'utf8'));
-const STATES = ['sim-state-ground', 'sim-state-mission', 'mavlink-state', 'mavlink-state-lost'];
+const STATES = [
+  'sim-state-ground', 'sim-state-mission', 'sim-state-failsafe', 'sim-state-overridden', 'mavlink-state',
+  'mavlink-state-lost',
+];
 
 /** Every member name anywhere in an answer. */
 function members(value, into = new Set()) {
@@ -73,9 +77,51 @@ test("the MAVLink backend's state, its link up and lost", () => {
   assert.deepEqual(up.home, { n: 0, e: 0, d: 0 });
   assert.equal(up.setpoint, null, 'no setpoint stream');
   assert.equal(up.waypointsLeft, null, 'the simulator only');
+  assert.equal(up.failsafe, null);
+  assert.equal(up.control, null, 'no one flies yet');
   const lost = readState(answer('mavlink-state-lost'));
   assert.equal(lost.link, 'lost');
   assert.ok(lost.linkAgeMs > 3000, lost.linkAgeMs);
+});
+
+test('who is in control, as another session and the pilot see it', () => {
+  assert.equal(readControlAnswer(answer('sim-control-free')), null, 'free');
+  const other = readControlAnswer(answer('sim-control-other'));
+  assert.match(other.by, /^ws 127\.0\.0\.1:\d+ #\d+$/);
+  assert.equal(other.you, false, 'asked by a session that is not the pilot');
+  assert.ok(other.since > Date.UTC(2020, 0), 'ms since the epoch');
+  const taken = readControlAnswer(answer('sim-control_take'));
+  assert.equal(taken.you, true);
+  assert.notEqual(taken.by, other.by, 'each session has a label of its own');
+  assert.equal(readControlAnswer(answer('sim-control_release')), null);
+  // `state` names the pilot (the session that took off) but never says `you`.
+  const flying = readState(answer('sim-state-mission'));
+  assert.deepEqual(flying.control, { by: other.by, since: other.since, you: null });
+  assert.equal(readState(answer('sim-state-ground')).control, null);
+});
+
+test('a failsafe, and once the pilot overrode it', () => {
+  assert.equal(readState(answer('sim-state-ground')).failsafe, null);
+  const held = readState(answer('sim-state-failsafe'));
+  assert.deepEqual(held.failsafe, { reason: 'battery_low', overridden: false });
+  assert.equal(held.fsm, 'rtl', 'the vehicle returns on its own');
+  const overridden = readState(answer('sim-state-overridden'));
+  assert.deepEqual(overridden.failsafe, { reason: 'battery_low', overridden: true });
+  const pilot = readControlAnswer(answer('sim-control_take-failsafe'));
+  assert.equal(pilot.you, true);
+  assert.equal(overridden.control.by, pilot.by, 'overriding took control');
+});
+
+test('failsafe and control read defensively', () => {
+  assert.deepEqual(readFailsafe('autopilot: RTL'), { reason: 'autopilot: RTL', overridden: false });
+  assert.deepEqual(readFailsafe('external: POSCTL (overridden)'), { reason: 'external: POSCTL', overridden: true });
+  assert.deepEqual(readFailsafe(' (overridden)'), { reason: ' (overridden)', overridden: false }, 'no reason left');
+  for (const value of [null, undefined, '', 7, {}]) assert.equal(readFailsafe(value), null, String(value));
+  assert.equal(readControl({ by: 'mqtt alice' }), null, 'no since');
+  assert.equal(readControl({ by: '', since: 1 }), null);
+  assert.equal(readControl('mqtt alice'), null);
+  assert.deepEqual(readControl({ by: 'mqtt alice', since: 1, you: 'yes' }), { by: 'mqtt alice', since: 1, you: null });
+  assert.equal(readControlAnswer({ ret: -1, msg: 'This session is not in control' }), null);
 });
 
 test('missing or mistyped members read as null instead of breaking', () => {

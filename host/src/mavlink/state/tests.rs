@@ -7,6 +7,7 @@ use ::mavlink::dialects::ardupilotmega::{
 use lluav_core::{Pose, SessionId};
 
 use super::*;
+use crate::mavlink::authority::Asked;
 use crate::mavlink::mission::{Mission, OnAutopilot, Waypoint};
 use crate::vehicle::Ned;
 
@@ -266,4 +267,114 @@ fn the_stream_stops_when_the_last_session_that_set_it_leaves() {
     assert_eq!(k.setpoint(), Some(POSE));
     k.release(SessionId(2));
     assert_eq!(k.setpoint(), None);
+}
+
+fn heartbeat_in(custom_mode: u32, status: MavState) -> MavMessage {
+    let MavMessage::HEARTBEAT(hb) = heartbeat(true) else {
+        unreachable!()
+    };
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode,
+        system_status: status,
+        ..hb
+    })
+}
+
+const PX4_RTL: u32 = (4 << 16) | (5 << 24);
+const PX4_OFFBOARD: u32 = 6 << 16;
+
+#[test]
+fn a_failsafe_mode_stops_the_stream_and_refuses_steering_until_overridden() {
+    let mut k = flying();
+    k.ask(Asked::Setpoints, 0);
+    k.receive(
+        addr(1),
+        &header(1),
+        &heartbeat_in(PX4_OFFBOARD, MavState::MAV_STATE_ACTIVE),
+        10,
+    );
+    assert_eq!((k.failsafe(), k.setpoint()), (None, Some(POSE)));
+    assert_eq!(k.check_steering(), Ok(()));
+    k.receive(
+        addr(1),
+        &header(1),
+        &heartbeat_in(PX4_RTL, MavState::MAV_STATE_CRITICAL),
+        20,
+    );
+    let f = k.failsafe().expect("the autopilot's return");
+    assert_eq!(f.reason().to_string(), "autopilot: AUTO.RTL");
+    assert_eq!(
+        k.setpoint(),
+        None,
+        "the vehicle left the setpoint: no more streaming"
+    );
+    assert_eq!(
+        k.check_steering().unwrap_err().to_string(),
+        "Vehicle is in failsafe (autopilot: AUTO.RTL): land, rtl or control_take failsafe"
+    );
+    assert!(k.override_failsafe().is_some_and(|f| f.overridden));
+    assert_eq!(k.check_steering(), Ok(()));
+    // Disarmed: over.
+    k.receive(addr(1), &header(1), &heartbeat(false), 30);
+    assert_eq!(k.failsafe(), None);
+}
+
+#[test]
+fn a_critical_status_keeps_the_stream_the_vehicle_still_follows() {
+    let mut k = flying();
+    k.ask(Asked::Setpoints, 0);
+    k.receive(
+        addr(1),
+        &header(1),
+        &heartbeat_in(PX4_OFFBOARD, MavState::MAV_STATE_CRITICAL),
+        10,
+    );
+    assert_eq!(
+        k.failsafe().map(|f| f.reason().to_string()).as_deref(),
+        Some("autopilot: CRITICAL")
+    );
+    assert_eq!(k.setpoint(), Some(POSE));
+}
+
+#[test]
+fn a_new_vehicle_is_seen_afresh_and_its_return_counts_at_first_sight() {
+    let mut k = flying();
+    k.receive(
+        addr(1),
+        &header(1),
+        &heartbeat_in(PX4_RTL, MavState::MAV_STATE_ACTIVE),
+        10,
+    );
+    assert!(k.failsafe().is_some());
+    // Rebooted (its boot time went back): nothing of the old one holds,
+    // what it does now is looked at afresh.
+    k.receive(addr(1), &header(1), &attitude(500), 20);
+    assert_eq!(k.failsafe(), None);
+    k.receive(
+        addr(1),
+        &header(1),
+        &heartbeat_in(PX4_RTL, MavState::MAV_STATE_ACTIVE),
+        30,
+    );
+    assert_eq!(
+        k.failsafe().map(|f| f.reason().to_string()).as_deref(),
+        Some("autopilot: AUTO.RTL")
+    );
+}
+
+#[test]
+fn a_mission_runs_while_the_autopilot_flies_it() {
+    let mut k = flying();
+    let plan = k.missions().on_autopilot().cloned().expect("mission 7");
+    k.missions_mut().start_run(plan);
+    assert!(!k.mission_running(10), "not in the mission mode yet");
+    k.receive(
+        addr(1),
+        &header(1),
+        &heartbeat_in((4 << 16) | (4 << 24), MavState::MAV_STATE_ACTIVE),
+        10,
+    );
+    assert!(k.mission_running(10));
+    k.missions_mut().drop_run();
+    assert!(!k.mission_running(10));
 }

@@ -13,7 +13,6 @@ use core::mem::MaybeUninit;
 
 use defmt::{info, unwrap, warn};
 use embassy_executor::Spawner;
-use embassy_futures::select::{Either, select};
 use embassy_net::{Ipv4Address, Ipv4Cidr, StackResources, StaticConfigV4};
 use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
 use embassy_stm32::exti::{self, ExtiInput};
@@ -27,10 +26,11 @@ use embassy_stm32::timer::simple_pwm::{PwmPin, SimplePwm, SimplePwmChannel};
 use embassy_stm32::{Config, bind_interrupts, eth, interrupt};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
-use embassy_time::{Duration, Instant, Timer, with_timeout};
-use lluav_core::{Auth, Clock, Failure, Server};
+use embassy_time::{Duration, with_timeout};
+use lluav_core::Failure;
+use lluav_embedded::SharedServer;
 use lluav_embedded::board::{Board, Led, Peripherals};
-use lluav_embedded::{SharedServer, Slot};
+use lluav_embedded::firmware::{self, SESSIONS, SessionSlot, Uptime};
 use static_cell::{ConstStaticCell, StaticCell};
 use {defmt_rtt as _, panic_probe as _};
 
@@ -40,13 +40,6 @@ bind_interrupts!(struct Irqs {
     EXTI15_10 => exti::InterruptHandler<interrupt::typelevel::EXTI15_10>;
 });
 
-/// Concurrent WebSocket sessions.
-const SESSIONS: usize = 4;
-/// TCP receive buffer (the receive window), TCP transmit buffer (a whole
-/// 2 KiB reply and its 4-byte header, rounded up), frame limit (DESIGN.md:
-/// 4 KiB on MCU) and reply capacity (2 KiB on MCU, written inside the
-/// transmit buffer).
-type SessionSlot = Slot<1024, 2064, 4096, 2048>;
 /// The address used when no DHCP server answers in time.
 const FALLBACK: Ipv4Address = Ipv4Address::new(192, 168, 1, 53);
 const DHCP_TIMEOUT: Duration = Duration::from_secs(10);
@@ -70,15 +63,6 @@ static RESOURCES: ConstStaticCell<StackResources<{ SESSIONS + 1 }>> =
     ConstStaticCell::new(StackResources::new());
 static SERVER: StaticCell<Shared> = StaticCell::new();
 static LED: Signal<CriticalSectionRawMutex, Led> = Signal::new();
-
-/// `ts` without a wall clock: milliseconds since boot.
-struct Uptime;
-
-impl Clock for Uptime {
-    fn unix_ms(&self) -> i64 {
-        Instant::now().as_millis() as i64
-    }
-}
 
 /// The NUCLEO's LEDs: LD3 follows the LED task, LD1 is the PWM output.
 struct Nucleo {
@@ -104,21 +88,7 @@ async fn net_task(mut runner: embassy_net::Runner<'static, Device>) -> ! {
 
 #[embassy_executor::task]
 async fn led_task(mut led: Output<'static>) -> ! {
-    let mut mode = Led::Off;
-    loop {
-        match mode {
-            Led::Off => led.set_low(),
-            Led::On => led.set_high(),
-            Led::Blink => led.toggle(),
-        }
-        mode = match mode {
-            Led::Blink => match select(LED.wait(), Timer::after_millis(250)).await {
-                Either::First(next) => next,
-                Either::Second(()) => Led::Blink,
-            },
-            _ => LED.wait().await,
-        };
-    }
+    firmware::drive_led(&LED, |lit| led.set_level(Level::from(lit))).await
 }
 
 /// Mirrors the armed line (B1, active high) into the backend.
@@ -177,16 +147,8 @@ async fn main(spawner: Spawner) {
     pwm.enable();
     spawner.spawn(unwrap!(led_task(Output::new(p.PB14, Level::Low, Speed::Low))));
 
-    let password = option_env!("LLUAV_PASSWORD");
-    if password.is_none() {
-        warn!("built without LLUAV_PASSWORD: every command runs without login");
-    }
-    let auth = unwrap!(Auth::new(password).ok());
-    let server = SERVER.init(SharedServer::new(Server::new(
-        Board::new(Nucleo { pwm }),
-        Uptime,
-        auth,
-    )));
+    let server = unwrap!(firmware::server(Nucleo { pwm }, option_env!("LLUAV_PASSWORD")).ok());
+    let server = SERVER.init(SharedServer::new(server));
     let armed_line = ExtiInput::new(p.PC13, p.EXTI13, Pull::Down, Irqs);
     spawner.spawn(unwrap!(armed_task(armed_line, server)));
 
@@ -210,7 +172,7 @@ async fn main(spawner: Spawner) {
 }
 
 /// The adapter's settings: in flash, not built at run time.
-const CONFIG: lluav_embedded::Config = lluav_embedded::Config::new();
+const CONFIG: lluav_embedded::Config = firmware::config(&[]);
 
 /// 400 MHz from the internal oscillator; the Ethernet MAC runs from AHB.
 fn clocks() -> Config {

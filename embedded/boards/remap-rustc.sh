@@ -1,6 +1,6 @@
 #!/bin/sh
-# cargo runs rustc through this script (build.rustc-wrapper in
-# .cargo/config.toml) so that the firmware names source files relative to
+# Every board's cargo runs rustc through this script (build.rustc-wrapper in
+# its .cargo/config.toml) so that the firmware names source files relative to
 # their crate, the toolchain's library or this repository, never by the
 # build machine's absolute paths: panic locations keep their file names in
 # flash, and the long registry paths cost about 2 KB of it.
