@@ -48,10 +48,7 @@ fn envelope_case(payload: &[u8]) {
             let v: Value = serde_json::from_str(&answer).expect("an answer is JSON");
             assert_eq!(v["id"], request.id.as_str());
             // The same envelope naming "frame" once more is refused.
-            let at = payload
-                .iter()
-                .position(|b| *b == b'{')
-                .expect("an object");
+            let at = payload.iter().position(|b| *b == b'{').expect("an object");
             let mut twice = payload[..=at].to_vec();
             twice.extend_from_slice(br#""frame":"login 1025","#);
             twice.extend_from_slice(&payload[at + 1..]);
@@ -115,7 +112,12 @@ fn key_of(client: &str, id: &str) -> (usize, u8) {
 }
 
 fn interrupted(id: &str) -> Bytes {
-    let response = envelope::error(lluav_core::Ret::SystemCall, 9, 0, "Interrupted by a restart; check state");
+    let response = envelope::error(
+        lluav_core::Ret::SystemCall,
+        9,
+        0,
+        "Interrupted by a restart; check state",
+    );
     Bytes::from(envelope::response(Some(id), &response))
 }
 
@@ -200,7 +202,10 @@ impl Model {
         };
         let key = key_of(&client, &job.id);
         let c = key.0;
-        assert!(!self.running.contains_key(&c), "two requests of one client at once");
+        assert!(
+            !self.running.contains_key(&c),
+            "two requests of one client at once"
+        );
         let k = self.known.get_mut(&key).expect("a known request");
         assert!(!k.started, "taken twice: {key:?}");
         k.started = true;
@@ -247,10 +252,7 @@ impl Model {
         self.running.clear();
         self.epoch += 1;
         let found = durable::replay(&self.log, self.now as i64, WINDOW as i64);
-        let restored: HashSet<(usize, u8)> = found
-            .iter()
-            .map(|f| key_of(&f.client, &f.id))
-            .collect();
+        let restored: HashSet<(usize, u8)> = found.iter().map(|f| key_of(&f.client, &f.id)).collect();
         for f in found {
             let key = key_of(&f.client, &f.id);
             let age = self.now.saturating_sub(f.at as u64);
