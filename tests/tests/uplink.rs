@@ -3,9 +3,9 @@
 //! repeats (also across a restart and an eviction), bad input, oversized
 //! messages, status and will, state publishing, broker restarts, mqtts,
 //! credentials, the README's broker config and ACL, bridged brokers,
-//! several vehicles, the `lluav --broker` command line, and a stand-in
-//! broker that floods and never reads. Needs `--features broker`
-//! (scripts/test-uplink.sh).
+//! several vehicles, the `lluav --broker` command line, what its requests
+//! did told on the `/events` stream, and a stand-in broker that floods and
+//! never reads. Needs `--features broker` (scripts/test-uplink.sh).
 
 use std::collections::{HashMap, HashSet};
 use std::os::unix::net::UnixDatagram;
@@ -1521,6 +1521,82 @@ async fn a_client_that_lost_its_session_to_a_crowd_still_gets_its_answer_and_not
     assert_eq!(victim.request("v1", "victim", "e1", "siyi_sync").await, first);
     let next = victim.request("v1", "victim", "e2", "siyi_sync").await;
     assert_eq!(next["response"]["siyi"]["syncs"], 2, "e1 ran once: {next}");
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+/// The next event on a `/events` subscriber, battery and log events
+/// left out (they come whenever they come); within [`WAIT`] (the
+/// stream's pings keep the connection itself from waiting that long).
+async fn flight_event(sub: &mut Conn) -> Value {
+    let next = async {
+        loop {
+            let e = match sub.recv().await {
+                lluav_tests::Received::Text(t) => {
+                    serde_json::from_str::<Value>(&t).expect("an event is JSON")
+                }
+                other => panic!("expected an event, got {other:?}"),
+            };
+            if !matches!(e["event"].as_str(), Some("battery" | "log")) {
+                return e;
+            }
+        }
+    };
+    tokio::time::timeout(WAIT, next).await.expect("an event in time")
+}
+
+#[tokio::test]
+async fn what_an_uplink_request_did_is_told_on_the_events_stream_once_answered() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = vehicle(dir.path(), &broker, "v1", Options::password(PASSWORD)).await;
+    let mut sub = Conn::connect(&format!("{}/events", daemon.url)).await;
+    assert_eq!(sub.request(&format!("login {PASSWORD}")).await["ret"], 0);
+    let mut op = operator(&broker, "op").await;
+    let login = op.request("v1", "op", "1", &format!("login {PASSWORD}")).await;
+    assert_eq!(login["response"]["ret"], 0, "{login}");
+    let takeoff = op.request("v1", "op", "2", "takeoff").await;
+    assert_eq!(takeoff["response"]["ret"], 0, "{takeoff}");
+    let control = op.request("v1", "op", "3", "control").await;
+    let pilot = control["response"]["control"]["by"].clone();
+    assert!(pilot.is_string(), "{control}");
+    // The uplink session stays open (idle sessions end after minutes):
+    // the takeoff's events are held only until its answer is published,
+    // not until the session ends.
+    let control_event = flight_event(&mut sub).await;
+    assert_eq!(control_event["event"], "control", "{control_event}");
+    assert_eq!(control_event["by"], pilot, "{control_event}");
+    let fsm = flight_event(&mut sub).await;
+    assert_eq!(
+        (&fsm["event"], &fsm["from"], &fsm["to"]),
+        (&"fsm".into(), &"disarmed".into(), &"takeoff".into()),
+        "{fsm}"
+    );
+    let armed = flight_event(&mut sub).await;
+    assert_eq!(
+        (&armed["event"], &armed["armed"]),
+        (&"armed".into(), &true.into()),
+        "{armed}"
+    );
+    // Events after them (a WebSocket session taking over) follow.
+    let mut ws = Conn::login(&daemon.url, PASSWORD).await;
+    assert_eq!(ws.request("control_take").await["ret"], 0);
+    let taken = loop {
+        let e = flight_event(&mut sub).await;
+        if e["event"] != "fsm" {
+            break e;
+        }
+        // The vehicle may reach its hover meanwhile.
+        assert_eq!(
+            (&e["from"], &e["to"]),
+            (&"takeoff".into(), &"hover".into()),
+            "{e}"
+        );
+    };
+    assert_eq!(
+        (&taken["event"], &taken["from"]),
+        (&"control".into(), &pilot),
+        "{taken}"
+    );
     assert_eq!(daemon.terminate().code(), Some(0));
 }
 
