@@ -154,7 +154,11 @@ impl Backend for Vehicle {
             "{:?} steered from a session not in control",
             cmd.id()
         );
-        assert!(!(steers && holds.is_some()), "{:?} steered in a failsafe", cmd.id());
+        assert!(
+            !(steers && holds.is_some()),
+            "{:?} steered in a failsafe",
+            cmd.id()
+        );
         assert!(
             !(class == Class::Return && holds.is_some_and(|f| f.landing())),
             "{:?} climbed in a landing failsafe",
@@ -462,7 +466,7 @@ fn exchange(
     let expected = login.map(|a| logins.expect(client.addr, &a, password.as_deref(), b.now));
     let holds = server.backend().failsafe.filter(|f| !f.overridden);
     let steers = text
-        .and_then(|t| split(t))
+        .and_then(split)
         .and_then(|s| lookup(s.name))
         .is_some_and(|spec| spec.class.steers(|| server.backend().mission_running));
     let mut out = [0u8; 4096];
