@@ -1705,3 +1705,72 @@ async fn a_broker_that_floods_and_never_reads_cannot_grow_lluavd_or_stop_its_web
     assert_eq!(ws.request("state").await["ret"], 0);
     assert_eq!(daemon.terminate().code(), Some(0));
 }
+
+/// One pilot across the transports (DESIGN.md, "Flight authority"): a
+/// WebSocket session flying keeps an operator through the broker from
+/// steering, and the operator's landing runs and hands it control.
+#[tokio::test]
+async fn one_session_flies_across_websocket_and_the_uplink() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let options = Options {
+        sim_speed: Some(10.0),
+        ..Options::password(PASSWORD)
+    };
+    let daemon = vehicle(dir.path(), &broker, "v1", options).await;
+    let mut ws = Conn::login(&daemon.url, PASSWORD).await;
+    let mut op = operator(&broker, "op").await;
+    let login = op.request("v1", "op", "1", &format!("login {PASSWORD}")).await;
+    assert_eq!(login["response"]["ret"], 0, "{login}");
+
+    assert_eq!(ws.request("takeoff").await["ret"], 0);
+    lluav_tests::wait_for_state(&mut ws, "hovering", |s| s["fsm"] == "hover").await;
+    assert_eq!(ws.request("set_sp_ned 1:0:-2:0").await["ret"], 0);
+    let mine = ws.request("control").await["control"].clone();
+    assert_eq!(mine["you"], true, "{mine}");
+    let ws_label = mine["by"].as_str().expect("a label").to_owned();
+    assert!(ws_label.starts_with("ws 127.0.0.1:"), "{ws_label}");
+
+    // The operator is refused motion and told who flies and how to take over.
+    let refused = op.request("v1", "op", "2", "set_sp_ned 2:0:-2:0").await["response"].clone();
+    assert_eq!(refused["ret"], -1, "{refused}");
+    let why = refused["msg"].as_str().unwrap_or_default();
+    assert!(
+        why.starts_with(&format!("Vehicle is flown by {ws_label} since ")),
+        "{refused}"
+    );
+    assert!(why.ends_with(": control_take to take over"), "{refused}");
+    let seen = op.request("v1", "op", "3", "control").await["response"].clone();
+    assert_eq!(
+        (&seen["control"]["by"], &seen["control"]["you"]),
+        (&ws_label.as_str().into(), &false.into()),
+        "{seen}"
+    );
+
+    // A landing is never refused by the control gate; it hands control over.
+    let land = op.request("v1", "op", "4", "land").await["response"].clone();
+    assert_eq!(land["ret"], 0, "{land}");
+    let now = ws.request("control").await["control"].clone();
+    assert_eq!(
+        (&now["by"], &now["you"]),
+        (&"mqtt op".into(), &false.into()),
+        "{now}"
+    );
+    let held = ws.request("set_sp_ned 1:0:-2:0").await;
+    assert!(
+        held["msg"]
+            .as_str()
+            .is_some_and(|m| m.starts_with("Vehicle is flown by mqtt op since ")),
+        "{held}"
+    );
+
+    // Released through the broker, control is free for the WebSocket session.
+    let released = op.request("v1", "op", "5", "control_release").await["response"].clone();
+    assert_eq!(
+        (&released["ret"], &released["control"]),
+        (&0.into(), &Value::Null),
+        "{released}"
+    );
+    assert_eq!(ws.request("control").await["control"], Value::Null);
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
