@@ -14,8 +14,6 @@
 //!   last answered 0, until it ends, releases, lapses after the backend's
 //!   control timeout without a request, or someone takes over.
 
-use core::net::{IpAddr, SocketAddr};
-
 use crate::number::Digits;
 use crate::response::Fields;
 use crate::session::SessionId;
@@ -34,67 +32,22 @@ impl Label {
     pub(crate) const EMPTY: Label = Label(heapless::String::new());
 
     /// The label of session `id` reached `via` a transport. Written
-    /// without `core::fmt`, which a firmware would link for it (its
-    /// address formatting alone is kilobytes).
+    /// without `core::fmt`, which a firmware would link for it.
     pub(crate) fn new(via: Via<'_>, id: SessionId) -> Label {
         let mut label = Label(heapless::String::new());
         let session = Digits::of(i64::from(id.0));
-        match via {
-            Via::WebSocket(addr) => {
-                label.push("ws ");
-                label.push_ip(addr.ip());
-                label.push(":");
-                label.push(Digits::of(i64::from(addr.port())).as_str());
-                label.push(" #");
-                label.push(session.as_str());
-            }
-            Via::Uplink(client) => {
-                label.push("mqtt ");
-                label.push(crate::error::cut_at_char_boundary(client, 64));
-            }
-            Via::Local => {
-                label.push("local #");
-                label.push(session.as_str());
-            }
+        let parts: [&str; 4] = match via {
+            Via::WebSocket(addr) => ["ws ", addr, " #", session.as_str()],
+            Via::Uplink(client) => ["mqtt ", client, "", ""],
+            Via::Local => ["local #", session.as_str(), "", ""],
+        };
+        for part in parts {
+            // Cut at a character boundary: a label never holds half a
+            // character, and the longest valid one fits.
+            let room = MAX_LABEL_LEN - label.0.len();
+            let _ = label.0.push_str(crate::error::cut_at_char_boundary(part, room));
         }
         label
-    }
-
-    /// Appends `s`; the longest label fits [`MAX_LABEL_LEN`], so nothing
-    /// is ever left out.
-    fn push(&mut self, s: &str) {
-        let _ = self.0.push_str(s);
-    }
-
-    /// `192.0.2.7`, or `[2001:db8:0:0:0:0:0:1]` (every group written: the
-    /// short form's rules are code a label does not need).
-    fn push_ip(&mut self, ip: IpAddr) {
-        match ip {
-            IpAddr::V4(v4) => {
-                for (i, octet) in v4.octets().into_iter().enumerate() {
-                    if i > 0 {
-                        self.push(".");
-                    }
-                    self.push(Digits::of(i64::from(octet)).as_str());
-                }
-            }
-            IpAddr::V6(v6) => {
-                const HEX: &[u8; 16] = b"0123456789abcdef";
-                self.push("[");
-                for (i, group) in v6.segments().into_iter().enumerate() {
-                    if i > 0 {
-                        self.push(":");
-                    }
-                    let nibbles = [group >> 12, (group >> 8) & 0xf, (group >> 4) & 0xf, group & 0xf];
-                    let first = nibbles.iter().position(|&n| n != 0).unwrap_or(3);
-                    for &n in nibbles.get(first..).unwrap_or_default() {
-                        let c = HEX.get(usize::from(n)).copied().unwrap_or(b'0');
-                        let _ = self.0.push(char::from(c));
-                    }
-                }
-                self.push("]");
-            }
-        }
     }
 
     /// The label's text.
@@ -106,8 +59,10 @@ impl Label {
 /// How a session reaches the vehicle, for its [`Label`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Via<'a> {
-    /// A WebSocket connection from this address.
-    WebSocket(SocketAddr),
+    /// A WebSocket connection from this address and port, as the adapter
+    /// writes it (`192.0.2.7:51234`, `[2001:db8::1]:40000`): an adapter
+    /// that only ever sees IPv4 never links IPv6's formatting.
+    WebSocket(&'a str),
     /// A client id through the uplink's broker.
     Uplink(&'a str),
     /// In-process (tests, the daemon's own reports).

@@ -34,13 +34,13 @@ pub fn command<S: Slots>(
     auth: &Auth<S>,
     armed: impl FnOnce() -> bool,
 ) -> Result<(), Refusal> {
-    if flags.admin_only && !session.admin() {
+    if flags.admin_only() && !session.admin() {
         return Err(Refusal::AdminOnly);
     }
-    if !flags.run_on_arm && armed() {
+    if !flags.run_on_arm() && armed() {
         return Err(Refusal::Armed);
     }
-    if !flags.run_in_lock && auth.lock_mode() && !session.admin() {
+    if !flags.run_in_lock() && auth.lock_mode() && !session.admin() {
         return Err(Refusal::Locked);
     }
     Ok(())

@@ -307,6 +307,8 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         answer: Answer<'a>,
     ) -> Answer<'a> {
         match answer {
+            // The pilot's own commands: `handle` has already heard it.
+            Answer::Done(..) if takes_control && self.control.held_by(session.id()) => answer,
             Answer::Done(..) if takes_control => {
                 // Taking control, it either steered or brought the vehicle down.
                 let steered = !id.spec().class.conservative();
@@ -384,7 +386,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             (CommandId::Help, _) => {
                 out.array("commands", |a| {
                     for spec in &TABLE {
-                        a.str(spec.name);
+                        a.str(spec.name());
                     }
                 });
             }

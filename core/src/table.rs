@@ -99,24 +99,38 @@ pub enum Section {
     Control,
 }
 
-/// Gate flags of one command (DESIGN.md, "Sessions and gates").
+/// Gate flags of one command (DESIGN.md, "Sessions and gates"), as bits
+/// of one byte: with the row's other one-byte fields the table's rows are
+/// 16 bytes, not 20 (408 bytes of a firmware's flash).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct Flags {
-    /// `runOnArm`: the command may run while the vehicle is armed.
-    pub run_on_arm: bool,
-    /// `runInLock`: a non-admin session may run it in lock mode.
-    pub run_in_lock: bool,
-    /// Only an admin session may run it.
-    pub admin_only: bool,
-}
+pub struct Flags(u8);
 
 impl Flags {
+    const NOT_ON_ARM: u8 = 1;
+    const NOT_IN_LOCK: u8 = 2;
+    const ADMIN_ONLY: u8 = 4;
+
     /// The default: runs armed, runs in lock mode, open to every session.
-    const OPEN: Flags = Flags {
-        run_on_arm: true,
-        run_in_lock: true,
-        admin_only: false,
-    };
+    const OPEN: Flags = Flags(0);
+
+    /// `runOnArm`: the command may run while the vehicle is armed.
+    pub const fn run_on_arm(self) -> bool {
+        self.0 & Self::NOT_ON_ARM == 0
+    }
+
+    /// `runInLock`: a non-admin session may run it in lock mode.
+    pub const fn run_in_lock(self) -> bool {
+        self.0 & Self::NOT_IN_LOCK == 0
+    }
+
+    /// Only an admin session may run it.
+    pub const fn admin_only(self) -> bool {
+        self.0 & Self::ADMIN_ONLY != 0
+    }
+
+    const fn with(self, bit: u8) -> Flags {
+        Flags(self.0 | bit)
+    }
 }
 
 /// What a command does to the flight, for the failsafe and control gates
@@ -203,8 +217,9 @@ impl Marks {
 pub struct Spec {
     /// The stable id sent as `cmd`.
     pub id: CommandId,
-    /// The name on the wire.
-    pub name: &'static str,
+    /// The name's length: the name on the wire is the start of the usage
+    /// line ([`Spec::name`]), stored once.
+    name_len: u8,
     /// Where the specification lists it.
     pub section: Section,
     /// How the arguments are written.
@@ -220,6 +235,14 @@ pub struct Spec {
 }
 
 impl Spec {
+    /// The name on the wire: the start of the usage line.
+    pub const fn name(&self) -> &'static str {
+        match self.usage.split_at_checked(self.name_len as usize) {
+            Some((name, _)) => name,
+            None => self.usage,
+        }
+    }
+
     /// One line saying what the command does (kept out of the table so
     /// that a firmware that never prints it links none of the text).
     pub fn summary(&self) -> &'static str {
@@ -232,9 +255,9 @@ impl Spec {
 // class (`RETURN`: conservative and climbs; else neutral); `READ`, `SESSION` = its effect (else vehicle).
 macro_rules! marks {
     () => { Marks::NONE };
-    (NO_ARM $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { run_on_arm: false, ..m.flags }) } };
-    (NO_LOCK $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { run_in_lock: false, ..m.flags }) } };
-    (ADMIN $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(Flags { admin_only: true, ..m.flags }) } };
+    (NO_ARM $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(m.flags.with(Flags::NOT_ON_ARM)) } };
+    (NO_LOCK $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(m.flags.with(Flags::NOT_IN_LOCK)) } };
+    (ADMIN $($rest:ident)*) => { { let m = marks!($($rest)*); m.flags(m.flags.with(Flags::ADMIN_ONLY)) } };
     (MOTION $($rest:ident)*) => { marks!($($rest)*).class(Class::Motion) };
     (STOPS_MISSION $($rest:ident)*) => { marks!($($rest)*).class(Class::StopsMission) };
     (CONSERVATIVE $($rest:ident)*) => { marks!($($rest)*).class(Class::Conservative) };
@@ -258,7 +281,7 @@ macro_rules! command_table {
         pub static TABLE: [Spec; [$( $($id,)* )*].len()] = [
             $( $( Spec {
                 id: CommandId::$variant,
-                name: name_in($usage, $name),
+                name_len: name_in($usage, $name),
                 section: Section::$section,
                 grammar: Grammar::$grammar,
                 flags: marks!($($flag)*).flags,
@@ -422,7 +445,7 @@ command_table! {
 /// `name`, as the start of `usage` (which begins with the name and a space,
 /// or is the name alone): the same text, stored once. A firmware's flash
 /// holds every usage line; the names would be about a kilobyte more.
-const fn name_in(usage: &'static str, name: &'static str) -> &'static str {
+const fn name_in(usage: &'static str, name: &'static str) -> u8 {
     let (head, rest) = match usage.split_at_checked(name.len()) {
         Some(parts) => parts,
         None => ("", ""),
@@ -431,7 +454,8 @@ const fn name_in(usage: &'static str, name: &'static str) -> &'static str {
         same(head.as_bytes(), name.as_bytes()) && matches!(rest.as_bytes().first(), None | Some(b' ')),
         "a usage line starts with its command's name"
     );
-    head
+    assert!(name.len() <= u8::MAX as usize, "a name fits its length byte");
+    name.len() as u8
 }
 
 // The table is indexed by `id - 1`; a row out of order would break `spec()`.
@@ -494,7 +518,7 @@ const fn at(index: &[u8], i: usize) -> u8 {
 /// The name of the command in slot value `v` (row + 1), for compile time.
 const fn name_of(v: u8) -> &'static [u8] {
     match TABLE.split_at_checked((v as usize).wrapping_sub(1)) {
-        Some((_, [spec, ..])) => spec.name.as_bytes(),
+        Some((_, [spec, ..])) => spec.name().as_bytes(),
         _ => b"",
     }
 }
@@ -504,7 +528,7 @@ const fn name_index() -> [u8; SLOTS] {
     let mut rows: &[Spec] = &TABLE;
     let mut row = 0;
     while let Some((spec, rest)) = rows.split_first() {
-        let name = spec.name.as_bytes();
+        let name = spec.name().as_bytes();
         let mut slot = slot_of(name);
         while at(&index, slot) != 0 {
             // Duplicate names would make lookup ambiguous.
@@ -531,7 +555,7 @@ pub fn lookup(name: &str) -> Option<&'static Spec> {
     for _ in 0..SLOTS {
         let row = usize::from(*BY_NAME.get(slot)?).checked_sub(1)?;
         let spec = TABLE.get(row)?;
-        if spec.name == name {
+        if spec.name() == name {
             return Some(spec);
         }
         slot = (slot + 1) % SLOTS;
@@ -547,7 +571,7 @@ impl CommandId {
 
     /// The wire name.
     pub fn name(self) -> &'static str {
-        self.spec().name
+        self.spec().name()
     }
 
     /// Where the specification lists it.

@@ -33,7 +33,7 @@ fn vehicle(n: u16) -> (TestServer, Vec<Session>) {
     let sessions = (0..n)
         .map(|i| {
             let addr: SocketAddr = ([192, 0, 2, 7], 51000 + i).into();
-            let mut session = s.open_via(Some(addr.ip().into()), Via::WebSocket(addr));
+            let mut session = s.open_via(Some(addr.ip().into()), Via::WebSocket(&addr.to_string()));
             assert_eq!(send(&mut s, &mut session, "login pw").ret(), 0);
             session
         })
@@ -314,26 +314,34 @@ fn no_gate_refuses_a_conservative_command_while_control_is_held_elsewhere() {
         };
         s.backend_mut().armed = true;
         assert_eq!(send(&mut s, pilot, "set_sp_ned 1:1:-2:0").ret(), 0);
-        assert_eq!(send(&mut s, other, spec.name).ret(), 0, "{}", spec.name);
+        assert_eq!(send(&mut s, other, spec.name()).ret(), 0, "{}", spec.name());
     }
 }
 
 #[test]
 fn labels_say_who_without_secrets() {
     let mut s = server(None);
-    let v6: SocketAddr = "[2001:db8::1]:40000".parse().unwrap();
-    let v4: SocketAddr = ([192, 0, 2, 7], 51234).into();
     let label = |s: &mut TestServer, via| s.open_via(None, via).label().as_str().to_owned();
-    assert_eq!(label(&mut s, Via::WebSocket(v4)), "ws 192.0.2.7:51234 #1");
     assert_eq!(
-        label(&mut s, Via::WebSocket(v6)),
-        "ws [2001:db8:0:0:0:0:0:1]:40000 #2"
+        label(&mut s, Via::WebSocket("192.0.2.7:51234")),
+        "ws 192.0.2.7:51234 #1"
+    );
+    assert_eq!(
+        label(&mut s, Via::WebSocket("[2001:db8::1]:40000")),
+        "ws [2001:db8::1]:40000 #2"
     );
     assert_eq!(label(&mut s, Via::Uplink("alice")), "mqtt alice");
     assert_eq!(label(&mut s, Via::Local), "local #4");
-    let widest: SocketAddr = "[ffff:ffff:ffff:ffff:ffff:ffff:ffff:ffff]:65535".parse().unwrap();
+    let widest = "[ffff:ffff:ffff:ffff:ffff:ffff:ffff:ffff]:65535";
     assert_eq!(
         label(&mut s, Via::WebSocket(widest)),
-        "ws [ffff:ffff:ffff:ffff:ffff:ffff:ffff:ffff]:65535 #5"
+        format!("ws {widest} #5"),
+        "the longest address fits"
+    );
+    let long_client = "é".repeat(40);
+    let cut = label(&mut s, Via::Uplink(&long_client));
+    assert!(
+        cut.len() <= lluav_core::authority::MAX_LABEL_LEN && cut.starts_with("mqtt é"),
+        "{cut}"
     );
 }

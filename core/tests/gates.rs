@@ -17,13 +17,13 @@ fn expected(spec: &Spec, who: Who, armed: bool, locked: bool) -> Result<(), &'st
     if who == Who::LoggedOut && spec.id != CommandId::Login {
         return Err("Login first!");
     }
-    if spec.flags.admin_only && who != Who::Admin {
+    if spec.flags.admin_only() && who != Who::Admin {
         return Err("Admin only!");
     }
-    if !spec.flags.run_on_arm && armed {
+    if !spec.flags.run_on_arm() && armed {
         return Err("Not allow when vehicle is ARMED!");
     }
-    if !spec.flags.run_in_lock && locked && who != Who::Admin {
+    if !spec.flags.run_in_lock() && locked && who != Who::Admin {
         return Err("CMD not permitted to run in LOCK mode!");
     }
     Ok(())
@@ -48,7 +48,7 @@ fn run(spec: &Spec, who: Who, armed: bool, locked: bool) -> (Seen, Vec<CommandId
         CommandId::Login => Some("pw".to_string()),
         _ => valid_args(spec.grammar).remove(0),
     };
-    let seen = send(&mut s, &mut sess, &frame(spec.name, &args));
+    let seen = send(&mut s, &mut sess, &frame(spec.name(), &args));
     (seen, s.backend().executed.clone())
 }
 
@@ -75,7 +75,7 @@ fn the_gate_matrix_holds_for_every_command() {
             for armed in [false, true] {
                 for locked in [false, true] {
                     let (seen, executed) = run(spec, who, armed, locked);
-                    let case = format!("{} as {who:?}, armed={armed}, locked={locked}", spec.name);
+                    let case = format!("{} as {who:?}, armed={armed}, locked={locked}", spec.name());
                     assert_eq!(seen.cmd(), i64::from(u8::from(spec.id)), "{case}");
                     match expected(spec, who, armed, locked) {
                         Err(msg) => {

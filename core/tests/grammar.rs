@@ -302,7 +302,7 @@ fn invalid(g: Grammar) -> Vec<(Option<String>, ArgError)> {
 fn every_command_accepts_its_valid_forms() {
     for spec in &TABLE {
         for args in valid_args(spec.grammar) {
-            let f = frame(spec.name, &args);
+            let f = frame(spec.name(), &args);
             let cmd = parse(&f).unwrap_or_else(|e| panic!("{f:?} should parse: {e:?}"));
             assert_eq!(cmd.id(), spec.id);
             assert_eq!(cmd.args().grammar(), spec.grammar);
@@ -314,7 +314,7 @@ fn every_command_accepts_its_valid_forms() {
 fn every_command_refuses_its_invalid_forms_with_a_typed_reason() {
     for spec in &TABLE {
         for (args, why) in invalid(spec.grammar) {
-            let f = frame(spec.name, &args);
+            let f = frame(spec.name(), &args);
             assert_eq!(parse(&f), Err(ParseError::InvalidArgs(spec.id, why)), "{f:?}");
         }
     }
@@ -327,8 +327,8 @@ fn invalid_arguments_get_ret_minus_2_and_the_usage_line_or_their_reason() {
     assert_eq!(send(&mut s, &mut admin, "login 1025").ret(), 0);
     for spec in &TABLE {
         for (args, why) in invalid(spec.grammar) {
-            let r = send(&mut s, &mut admin, &frame(spec.name, &args));
-            assert_eq!(r.ret(), -2, "{}", spec.name);
+            let r = send(&mut s, &mut admin, &frame(spec.name(), &args));
+            assert_eq!(r.ret(), -2, "{}", spec.name());
             assert_eq!(r.cmd(), i64::from(u8::from(spec.id)));
             let msg = match why.reason() {
                 Some(reason) => format!("Invalid arguments: {reason}"),

@@ -163,7 +163,7 @@ fn parsing_and_encoding_every_command_allocates_nothing() {
         .flat_map(|s| {
             common::valid_args(s.grammar)
                 .into_iter()
-                .map(|a| common::frame(s.name, &a))
+                .map(|a| common::frame(s.name(), &a))
         })
         .collect();
     let mut parsed = 0;

@@ -240,7 +240,7 @@ proptest! {
     fn every_generated_command_round_trips_through_its_text((row, owned) in any_command()) {
         let spec = &TABLE[row];
         let cmd = Command::new(spec.id, owned.args())
-            .unwrap_or_else(|e| panic!("generator made an invalid {}: {e:?} {owned:?}", spec.name));
+            .unwrap_or_else(|e| panic!("generator made an invalid {}: {e:?} {owned:?}", spec.name()));
         let text = cmd.to_string();
         prop_assert_eq!(parse(&text), Ok(cmd.clone()), "text: {:?}", text);
         let mut small: heapless::String<8192> = heapless::String::new();

@@ -248,7 +248,7 @@ fn help_lists_every_command_of_the_table() {
         .iter()
         .map(|v| v.as_str().unwrap())
         .collect();
-    let table: Vec<&str> = lluav_core::TABLE.iter().map(|s| s.name).collect();
+    let table: Vec<&str> = lluav_core::TABLE.iter().map(|s| s.name()).collect();
     assert_eq!(names, table);
 }
 

@@ -86,12 +86,12 @@ pub const SAFETY: &[&str] = &["land", "rtl", "mrtl", "tether_land", "disarm", "s
 fn table_holds_login_the_98_commands_of_the_reference_and_the_extensions_in_id_order() {
     assert_eq!(TABLE.len(), 99 + EXTENSIONS.len());
     for (i, spec) in TABLE.iter().enumerate() {
-        assert_eq!(usize::from(u8::from(spec.id)), i + 1, "{}", spec.name);
+        assert_eq!(usize::from(u8::from(spec.id)), i + 1, "{}", spec.name());
         assert_eq!(CommandId::from_u8(u8::from(spec.id)), Some(spec.id));
-        assert_eq!(table::lookup(spec.name).map(|s| s.id), Some(spec.id));
-        assert_eq!(CommandId::from_name(spec.name), Some(spec.id));
+        assert_eq!(table::lookup(spec.name()).map(|s| s.id), Some(spec.id));
+        assert_eq!(CommandId::from_name(spec.name()), Some(spec.id));
         assert!(
-            spec.usage.starts_with(spec.name),
+            spec.usage.starts_with(spec.name()),
             "usage names the command: {}",
             spec.usage
         );
@@ -174,7 +174,7 @@ fn first_appearances() -> Vec<(&'static str, &'static str)> {
 #[test]
 fn every_command_of_the_spec_reference_is_in_the_table() {
     let names: Vec<&str> = first_appearances().into_iter().map(|(_, n)| n).collect();
-    let table: Vec<&str> = TABLE.iter().map(|s| s.name).take(99).collect();
+    let table: Vec<&str> = TABLE.iter().map(|s| s.name()).take(99).collect();
     assert_eq!(
         table, names,
         "the table lists the spec's commands in the spec's order"
@@ -217,22 +217,22 @@ fn lookup_is_exact_and_case_sensitive() {
 fn gate_flags_match_design() {
     for spec in &TABLE {
         assert_eq!(
-            spec.flags.run_on_arm,
-            !NOT_WHILE_ARMED.contains(&spec.name),
+            spec.flags.run_on_arm(),
+            !NOT_WHILE_ARMED.contains(&spec.name()),
             "runOnArm of {}",
-            spec.name
+            spec.name()
         );
         assert_eq!(
-            spec.flags.run_in_lock,
-            !NOT_IN_LOCK.contains(&spec.name),
+            spec.flags.run_in_lock(),
+            !NOT_IN_LOCK.contains(&spec.name()),
             "runInLock of {}",
-            spec.name
+            spec.name()
         );
         assert_eq!(
-            spec.flags.admin_only,
-            ["admin_lock", "admin_unlock"].contains(&spec.name),
+            spec.flags.admin_only(),
+            ["admin_lock", "admin_unlock"].contains(&spec.name()),
             "admin-only of {}",
-            spec.name
+            spec.name()
         );
     }
     for name in NOT_WHILE_ARMED.iter().chain(NOT_IN_LOCK) {
@@ -248,7 +248,7 @@ fn safety_commands_are_never_gated_by_arm_or_lock() {
     for name in SAFETY {
         let spec = table::lookup(name).expect("safety command exists");
         assert!(
-            spec.flags.run_on_arm && spec.flags.run_in_lock && !spec.flags.admin_only,
+            spec.flags.run_on_arm() && spec.flags.run_in_lock() && !spec.flags.admin_only(),
             "{name}"
         );
     }
@@ -262,20 +262,20 @@ fn classes_and_effects_match_design() {
     let returns = ["rtl", "mrtl"];
     let session = ["login", "control", "control_take", "control_release"];
     for spec in &TABLE {
-        let class = match spec.name {
+        let class = match spec.name() {
             n if motion.contains(&n) => Class::Motion,
             n if conservative.contains(&n) => Class::Conservative,
             n if returns.contains(&n) => Class::Return,
             "abort_report" => Class::StopsMission,
             _ => Class::Neutral,
         };
-        assert_eq!(spec.class, class, "class of {}", spec.name);
-        if session.contains(&spec.name) {
-            assert_eq!(spec.effect, Effect::Session, "{}", spec.name);
+        assert_eq!(spec.class, class, "class of {}", spec.name());
+        if session.contains(&spec.name()) {
+            assert_eq!(spec.effect, Effect::Session, "{}", spec.name());
         }
         // A command that changes nothing moves nothing either.
         if spec.effect == Effect::Read {
-            assert_eq!(spec.class, Class::Neutral, "{}", spec.name);
+            assert_eq!(spec.class, Class::Neutral, "{}", spec.name());
         }
     }
     for name in [
@@ -318,6 +318,6 @@ fn the_fuzz_dictionary_lists_exactly_the_table() {
         .filter(|l| !l.starts_with('#'))
         .map(|l| l.trim_matches('"'))
         .collect();
-    let table: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
+    let table: Vec<&str> = TABLE.iter().map(|s| s.name()).collect();
     assert_eq!(names, table);
 }

@@ -10,14 +10,15 @@
 # LLUAV_CORE_ONLY_FEATURES adds features of embedded/core-only (ryu-small).
 set -euo pipefail
 top=${1:-20}
-# Fails when core-only is over its flash budget, 32 KiB.
+# Fails when core-only is over its flash budget, 36 KiB (32 KiB until
+# flight authority, issue 29, added its gates, commands and labels: ~3 KB).
 # shellcheck source=scripts/lib.sh
 . "$(dirname "$0")/../../scripts/lib.sh"
 core_elf=$(cd embedded/core-only && built_executable --release --features "${LLUAV_CORE_ONLY_FEATURES:-}")
 fw_elf=$(cd embedded/boards/nucleo-h743zi && built_executable --release)
 
 sections() { size -A "$1" | awk '{ print $1, $2 }'; }
-{ sections "$core_elf" | sed 's/^/core /'; sections "$fw_elf" | sed 's/^/fw /'; } | awk -v budget=$((32 * 1024)) '
+{ sections "$core_elf" | sed 's/^/core /'; sections "$fw_elf" | sed 's/^/fw /'; } | awk -v budget=$((36 * 1024)) '
   { s[$1, $2] = $3 }
   function flash(w) { return s[w, ".vector_table"] + s[w, ".text"] + s[w, ".rodata"] + s[w, ".data"] }
   function ram(w) { return s[w, ".data"] + s[w, ".bss"] + s[w, ".uninit"] }

@@ -13,7 +13,7 @@ rustup +nightly target add thumbv7em-none-eabihf >/dev/null
 rustup +nightly component add llvm-tools >/dev/null
 readobj=$(rustc +nightly --print sysroot)/lib/rustlib/x86_64-unknown-linux-gnu/bin/llvm-readobj
 # RUSTFLAGS replaces the config's rustflags, so they are repeated here.
-RUSTFLAGS="-C link-arg=-Tlink.x -C link-arg=-Tdefmt.x -C link-arg=-T$PWD/stack-sizes.x -C target-cpu=cortex-m7 -Z emit-stack-sizes" \
+RUSTFLAGS="-C link-arg=-Tlink.x -C link-arg=-Tdefmt.x -C link-arg=-T$PWD/stack-sizes.x -Z emit-stack-sizes" \
   cargo +nightly build --release --target-dir target/stack-sizes
 elf=target/stack-sizes/thumbv7em-none-eabihf/release/lluav-firmware
 table=$("$readobj" --stack-sizes --demangle "$elf" | awk '

@@ -8,8 +8,9 @@
 //! board whose slots are all held cannot even see that someone else wants
 //! in. So the slots keep a spare: when a connection arrives on the last
 //! listening slot, the oldest slot held by a connection that may be
-//! reclaimed (a handshake still in progress, or a session that has not
-//! logged in while a password is required) is evicted at once (its TCP
+//! reclaimed (a handshake still in progress, a session that has not
+//! logged in while a password is required, or a connection that is over
+//! and only waits for its peer's side of the close) is evicted at once (its TCP
 //! connection is reset), and that slot listens again. The newcomer keeps
 //! the slot it arrived on. Sessions that logged in are never evicted; when
 //! only they hold slots, the last slot serves its connection and nothing
@@ -57,7 +58,7 @@
 use core::cell::Cell;
 use core::net::IpAddr;
 
-use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant};
 
@@ -80,6 +81,10 @@ enum Phase {
     Handshake,
     /// A WebSocket session; `admitted` once it may run commands.
     Session { admitted: bool },
+    /// Its connection is over (a refused upgrade or an ended session) and
+    /// only waits for the peer's side of the close: reclaimable, and no
+    /// longer a handshake or a session of its address.
+    Closing,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -97,7 +102,10 @@ impl Entry {
     };
 
     fn reclaimable(&self) -> bool {
-        matches!(self.phase, Phase::Handshake | Phase::Session { admitted: false })
+        matches!(
+            self.phase,
+            Phase::Handshake | Phase::Session { admitted: false } | Phase::Closing
+        )
     }
 }
 
@@ -130,10 +138,10 @@ pub enum Offense {
 }
 
 /// The state of every slot of one `serve`, shared by their loops (which
-/// run in one task, hence plain cells).
+/// run on one executor, in one task or one task each: hence plain cells).
 pub struct Table<const N: usize> {
     slots: [Cell<Entry>; N],
-    evict: [Signal<NoopRawMutex, ()>; N],
+    evict: [Signal<CriticalSectionRawMutex, ()>; N],
     offenders: [Cell<Option<Offender>>; OFFENDERS],
 }
 
@@ -146,8 +154,9 @@ struct Offender {
 }
 
 impl<const N: usize> Table<N> {
-    /// Every slot idle.
-    pub fn new() -> Self {
+    /// Every slot idle; `const`, so that a firmware can keep the table in a
+    /// static shared by its slots' tasks.
+    pub const fn new() -> Self {
         Table {
             slots: [const { Cell::new(Entry::IDLE) }; N],
             evict: [const { Signal::new() }; N],
@@ -281,6 +290,21 @@ impl<const N: usize> Table<N> {
         }
     }
 
+    /// The connection on `slot` is over and closing: a client that retries
+    /// at once (all of a port forwarder's clients share one address) is not
+    /// refused for it, and the slot may be reclaimed for a newcomer.
+    pub fn closing(&self, slot: usize) {
+        if let Some(cell) = self.slots.get(slot) {
+            let entry = cell.get();
+            if entry.phase != Phase::Idle {
+                cell.set(Entry {
+                    phase: Phase::Closing,
+                    ..entry
+                });
+            }
+        }
+    }
+
     /// The connection on `slot` ended.
     pub fn ended(&self, slot: usize) {
         self.set(slot, Entry::IDLE);
@@ -361,6 +385,27 @@ mod tests {
             reclaim_after: Duration::from_secs(1),
             ..Config::new()
         }
+    }
+
+    #[test]
+    fn a_closing_connection_is_no_handshake_or_session_of_its_address_and_may_be_reclaimed() {
+        let t = Table::<3>::new();
+        let c = config();
+        (0..3).for_each(|i| t.listening(i));
+        assert_eq!(t.arrive(0, ip(1), &c, at(1)), Ok(None));
+        assert_eq!(t.arrive(1, ip(1), &c, at(1)), Ok(None));
+        // Both upgrades refused; their connections wait for the peer's FIN.
+        t.closing(0);
+        t.closing(1);
+        // The address retries at once: no handshake of its is in progress,
+        // and on the last listening slot the oldest closing slot makes room.
+        assert_eq!(t.arrive(2, ip(1), &c, at(3)), Ok(Some(0)));
+        t.opened(2, true);
+        t.closing(2);
+        assert!(
+            t.may_open(0, ip(1), &c),
+            "a closing session is not one of the address's"
+        );
     }
 
     #[test]

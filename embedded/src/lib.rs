@@ -74,7 +74,7 @@ use embassy_time::Duration;
 pub use connection::{Connection, Limits, MIN_MESSAGE};
 pub use error::{Error, Rejection};
 pub use lluav_core;
-pub use serve::{Slot, serve};
+pub use serve::{Slot, serve, serve_slot};
 pub use service::{Echo, Handler, Service, SharedServer};
 pub use transport::Transport;
 

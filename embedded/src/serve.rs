@@ -1,6 +1,6 @@
 //! The accept loop of every slot, and a slot's buffers.
 
-use core::net::{IpAddr, SocketAddr};
+use core::net::{IpAddr, SocketAddrV4};
 
 use embassy_futures::join::join_array;
 use embassy_futures::select::{Either, select};
@@ -64,8 +64,13 @@ impl<const RX: usize, const TX: usize, const FRAME: usize, const OUT: usize> Def
 }
 
 /// Serves `service` on `stack` with one concurrent session per slot, for
-/// ever. The stack needs one socket per slot (plus any the firmware uses
-/// itself, e.g. DHCP). See [`crate::admission`] for who gets a slot.
+/// ever, all in the calling task. The stack needs one socket per slot
+/// (plus any the firmware uses itself, e.g. DHCP). See [`crate::admission`]
+/// for who gets a slot.
+///
+/// Every slot's loop is a future joined in this one, so the task holds them
+/// all and polling them copies them through its stack frame; a firmware
+/// runs [`serve_slot`] in one task per slot instead.
 pub async fn serve<
     S,
     const N: usize,
@@ -87,19 +92,45 @@ where
     let loops = slots.each_mut().map(|slot| {
         let index = next;
         next += 1;
-        let place = Place {
-            stack,
-            config,
-            table: &table,
-            index,
-        };
-        place.run(service, slot)
+        serve_slot(stack, config, &table, index, service, slot)
     });
     join_array(loops).await;
     // Only reached with N = 0: there is nothing to serve.
     loop {
         core::future::pending::<()>().await;
     }
+}
+
+/// Serves slot `index` of `table` with `slot`'s buffers, for ever: one
+/// connection after another. Run one per slot, each in a task of its own
+/// (on one executor: the table's cells are not shared across threads),
+/// every one with the same `table`, `stack`, `config` and `service`; the
+/// stack needs one socket per slot.
+pub async fn serve_slot<
+    S,
+    const N: usize,
+    const RX: usize,
+    const TX: usize,
+    const FRAME: usize,
+    const OUT: usize,
+>(
+    stack: Stack<'_>,
+    config: &Config,
+    table: &Table<N>,
+    index: usize,
+    service: &S,
+    slot: &mut Slot<RX, TX, FRAME, OUT>,
+) -> !
+where
+    S: Service,
+{
+    let place = Place {
+        stack,
+        config,
+        table,
+        index,
+    };
+    place.run(service, slot).await
 }
 
 /// How a connection ended, for the teardown and the log.
@@ -128,7 +159,7 @@ impl<const N: usize> Place<'_, N> {
         self,
         service: &S,
         slot: &mut Slot<RX, TX, FRAME, OUT>,
-    ) {
+    ) -> ! {
         let config = self.config;
         loop {
             let mut socket = TcpSocket::new(self.stack, &mut slot.rx, &mut slot.tx);
@@ -170,6 +201,7 @@ impl<const N: usize> Place<'_, N> {
             // handshake can still be evicted. Connections that got no
             // session are reset at once.
             if matches!(end, End::Done(_)) {
+                self.table.closing(self.index);
                 let graceful = async {
                     socket.close();
                     let _ = with_timeout(config.close_timeout, drain(&mut socket)).await;
@@ -218,9 +250,9 @@ impl<const N: usize> Place<'_, N> {
             Ok(Err(e)) => return End::Done(Err(e)),
             Ok(Ok(())) => {}
         }
-        let remote = socket
-            .remote_endpoint()
-            .map(|e| SocketAddr::new(e.addr.into(), e.port));
+        let remote = socket.remote_endpoint().map(|e| match e.addr {
+            embassy_net::IpAddress::Ipv4(ip) => SocketAddrV4::new(ip, e.port),
+        });
         let session = session.insert(service.open(remote).await);
         let admitted = service.handler().await.admitted(session);
         self.table.opened(self.index, admitted);

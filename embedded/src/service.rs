@@ -1,6 +1,6 @@
 //! What a connection hands its complete messages to.
 
-use core::net::SocketAddr;
+use core::net::{IpAddr, SocketAddrV4};
 
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::{Mutex, MutexGuard};
@@ -42,7 +42,7 @@ pub trait Service {
         Self: 'a;
 
     /// The state of a connection from `peer` whose upgrade was accepted.
-    async fn open(&self, peer: Option<SocketAddr>) -> Self::Session;
+    async fn open(&self, peer: Option<SocketAddrV4>) -> Self::Session;
 
     /// Waits for exclusive access to handle a message.
     async fn handler(&self) -> Self::Handler<'_>;
@@ -136,10 +136,13 @@ impl<M: RawMutex, B: Backend, C: Clock> Service for SharedServer<M, B, C> {
     where
         Self: 'a;
 
-    async fn open(&self, peer: Option<SocketAddr>) -> Session {
+    async fn open(&self, peer: Option<SocketAddrV4>) -> Session {
         let mut server = self.server.lock().await;
         match peer {
-            Some(addr) => server.open_via(Some(addr.ip().into()), Via::WebSocket(addr)),
+            Some(addr) => {
+                let text = Address::of(addr);
+                server.open_via(Some(IpAddr::V4(*addr.ip()).into()), Via::WebSocket(text.as_str()))
+            }
             None => server.open(None),
         }
     }
@@ -195,7 +198,7 @@ impl Service for Echo {
     const ECHOES_TEXT: bool = true;
     type Handler<'a> = Echo;
 
-    async fn open(&self, _peer: Option<SocketAddr>) {}
+    async fn open(&self, _peer: Option<SocketAddrV4>) {}
 
     async fn handler(&self) -> Echo {
         Echo
@@ -204,4 +207,87 @@ impl Service for Echo {
     async fn ready(&self, _ticket: Ticket) {}
 
     async fn close(&self, _session: ()) {}
+}
+
+/// An IPv4 address and port as text (`192.0.2.7:51234`), for a session's
+/// label: written digit by digit, since `core::fmt` would cost the
+/// firmware kilobytes of flash.
+struct Address {
+    bytes: [u8; 21],
+    len: usize,
+}
+
+impl Address {
+    fn of(addr: SocketAddrV4) -> Address {
+        let mut a = Address {
+            bytes: [0; 21],
+            len: 0,
+        };
+        for (i, octet) in addr.ip().octets().into_iter().enumerate() {
+            if i > 0 {
+                a.push(b'.');
+            }
+            a.number(u32::from(octet));
+        }
+        a.push(b':');
+        a.number(u32::from(addr.port()));
+        a
+    }
+
+    fn push(&mut self, b: u8) {
+        if let Some(slot) = self.bytes.get_mut(self.len) {
+            *slot = b;
+            self.len += 1;
+        }
+    }
+
+    fn number(&mut self, n: u32) {
+        let mut digits = [0u8; 5];
+        let mut i = digits.len();
+        let mut n = n;
+        loop {
+            i -= 1;
+            if let Some(d) = digits.get_mut(i) {
+                *d = b'0' + (n % 10) as u8;
+            }
+            n /= 10;
+            if n == 0 || i == 0 {
+                break;
+            }
+        }
+        for &d in digits.get(i..).unwrap_or_default() {
+            self.push(d);
+        }
+    }
+
+    fn as_str(&self) -> &str {
+        self.bytes
+            .get(..self.len)
+            .and_then(|b| core::str::from_utf8(b).ok())
+            .unwrap_or("")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use core::net::{Ipv4Addr, SocketAddrV4};
+
+    use super::Address;
+
+    fn assert_written(address: SocketAddrV4, expected: &str) {
+        assert_eq!(Address::of(address).as_str(), expected);
+    }
+
+    #[test]
+    fn an_address_is_written_as_a_client_would_read_it() {
+        assert_written(
+            SocketAddrV4::new(Ipv4Addr::new(192, 0, 2, 7), 51234),
+            "192.0.2.7:51234",
+        );
+        assert_written(SocketAddrV4::new(Ipv4Addr::new(10, 0, 0, 0), 0), "10.0.0.0:0");
+        assert_written(
+            SocketAddrV4::new(Ipv4Addr::BROADCAST, 65535),
+            "255.255.255.255:65535",
+        );
+    }
 }

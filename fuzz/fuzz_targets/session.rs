@@ -135,13 +135,13 @@ impl Backend for Vehicle {
         let b = self.before.expect("execute runs only inside a message");
         let flags = cmd.id().spec().flags;
         assert!(!b.gated, "{:?} ran before login", cmd.id());
-        assert!(!(b.armed && !flags.run_on_arm), "{:?} ran while armed", cmd.id());
+        assert!(!(b.armed && !flags.run_on_arm()), "{:?} ran while armed", cmd.id());
         assert!(
-            !(b.locked && !b.admin() && !flags.run_in_lock),
+            !(b.locked && !b.admin() && !flags.run_in_lock()),
             "{:?} ran in lock mode",
             cmd.id()
         );
-        assert!(!flags.admin_only || b.admin(), "{:?} ran without admin", cmd.id());
+        assert!(!flags.admin_only() || b.admin(), "{:?} ran without admin", cmd.id());
         assert_eq!(
             (ctx.role, ctx.lock_mode, ctx.session, ctx.now_ms),
             (b.role, b.locked, b.session, b.now)
@@ -154,7 +154,11 @@ impl Backend for Vehicle {
             "{:?} steered from a session not in control",
             cmd.id()
         );
-        assert!(!(steers && holds.is_some()), "{:?} steered in a failsafe", cmd.id());
+        assert!(
+            !(steers && holds.is_some()),
+            "{:?} steered in a failsafe",
+            cmd.id()
+        );
         assert!(
             !(class == Class::Return && holds.is_some_and(|f| f.landing())),
             "{:?} climbed in a landing failsafe",
@@ -285,12 +289,12 @@ impl Authority {
 /// while a failsafe lands the vehicle.
 fn check_authority(spec: &lluav_core::Spec, msg: &str, holds: Option<Failsafe>) {
     if spec.class.conservative() {
-        assert!(!msg.starts_with(messages::FLOWN_BY), "{}: {msg}", spec.name);
+        assert!(!msg.starts_with(messages::FLOWN_BY), "{}: {msg}", spec.name());
         let landing_return = spec.class == Class::Return && holds.is_some_and(|f| f.landing());
         assert!(
             landing_return || !msg.starts_with(messages::FAILSAFE_OPEN),
             "{}: {msg}",
-            spec.name
+            spec.name()
         );
     }
 }
@@ -314,15 +318,15 @@ fn check_reply(reply: &str, frame: &str, b: Before) {
                 "{frame:?} succeeded before login"
             );
             assert!(
-                !(spec.flags.admin_only && !b.admin()),
+                !(spec.flags.admin_only() && !b.admin()),
                 "{frame:?} succeeded without admin"
             );
             assert!(
-                !(b.armed && !spec.flags.run_on_arm),
+                !(b.armed && !spec.flags.run_on_arm()),
                 "{frame:?} succeeded while armed"
             );
             assert!(
-                !(b.locked && !b.admin() && !spec.flags.run_in_lock),
+                !(b.locked && !b.admin() && !spec.flags.run_in_lock()),
                 "{frame:?} succeeded in lock"
             );
         }
@@ -462,7 +466,7 @@ fn exchange(
     let expected = login.map(|a| logins.expect(client.addr, &a, password.as_deref(), b.now));
     let holds = server.backend().failsafe.filter(|f| !f.overridden);
     let steers = text
-        .and_then(|t| split(t))
+        .and_then(split)
         .and_then(|s| lookup(s.name))
         .is_some_and(|spec| spec.class.steers(|| server.backend().mission_running));
     let mut out = [0u8; 4096];

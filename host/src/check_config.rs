@@ -62,7 +62,11 @@ pub enum CheckError {
 /// What the daemon checks at start without side effects: the password
 /// rules and the TLS files. A missing password beyond loopback is only
 /// reported on stderr: `passwd` may have stored one in the data directory.
+/// The public admin value is refused whatever the password.
 pub fn check(settings: &Settings) -> Result<(), CheckError> {
+    if let Some(refused) = daemon::refusal(settings, true) {
+        return Err(refused.into());
+    }
     match daemon::auth(settings, None) {
         Err(DaemonError::NoPassword(addr)) => {
             eprintln!(
@@ -241,5 +245,26 @@ mod tests {
         );
         assert!(printed.contains(&format!("password = \"{MASK}\"")), "{printed}");
         assert!(printed.contains("admin_password = \"1025\""), "{printed}");
+    }
+
+    #[test]
+    fn the_uplink_with_the_public_admin_value_is_refused_and_says_why() {
+        let uplink = "uplink = \"mqtt://broker.example\"\nvehicle_id = \"v1\"\npassword = \"pw-1234\"\n";
+        let refused = check(&settings(uplink)).expect_err("the public admin value through a broker");
+        let why = refused.to_string();
+        assert!(
+            why.contains("--uplink")
+                && why.contains("admin_password")
+                && why.contains("--allow-default-admin"),
+            "{why}"
+        );
+        // Without a password too: the admin rule is not a note.
+        let no_password =
+            "uplink = \"mqtt://broker.example\"\nvehicle_id = \"v1\"\nallow_no_password = true\n";
+        assert!(check(&settings(no_password)).is_err());
+        assert!(check(&settings(&format!("{uplink}admin_password = \"adm-4711\"\n"))).is_ok());
+        assert!(check(&settings(&format!("{uplink}allow_default_admin = true\n"))).is_ok());
+        // Loopback without an uplink keeps the spec's value.
+        assert!(check(&settings("password = \"pw-1234\"\n")).is_ok());
     }
 }

@@ -149,7 +149,8 @@ impl<V: Vehicle> Handler for Protocol<V> {
     type Session = Session;
 
     fn session(&self, peer: SocketAddr) -> Session {
-        self.locked(|server| server.open_via(Some(peer.ip().into()), Via::WebSocket(peer)))
+        let addr = peer.to_string();
+        self.locked(|server| server.open_via(Some(peer.ip().into()), Via::WebSocket(&addr)))
     }
 
     async fn handle<'o>(
@@ -291,6 +292,14 @@ pub enum DaemonError {
          bind to 127.0.0.1, or pass --allow-default-admin"
     )]
     PublicAdmin(SocketAddr),
+    /// An uplink with the public admin value needs `admin_password` or
+    /// `--allow-default-admin`: the broker's users are beyond loopback.
+    #[error(
+        "refusing to serve through the broker (--uplink) with the public admin login value 1025: anyone \
+         the broker lets publish to this vehicle's requests could log in as admin. Set \
+         `admin_password = \"...\"` in the config file (--config FILE), or pass --allow-default-admin"
+    )]
+    UplinkPublicAdmin,
     /// An uplink needs a password or `--allow-no-password`.
     #[error(
         "refusing to serve through the broker (--uplink) without a password: anyone the broker lets \
@@ -318,6 +327,14 @@ pub enum DaemonError {
     /// The uplink's CA file cannot be used.
     #[error("cannot use the uplink: {0}")]
     Uplink(crate::client::ClientError),
+    /// The uplink's answers cannot be kept in the data directory.
+    #[error("cannot keep the uplink's answers in {dir}: {source}")]
+    UplinkStore {
+        /// The directory.
+        dir: std::path::PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
     /// The autopilot's MAVLink link could not be opened.
     #[error("cannot open the MAVLink link {address}: {source}")]
     Mavlink {
@@ -339,7 +356,7 @@ pub struct Daemon<V> {
     net: net::Config,
     mode: Mode<V>,
     notifier: Option<Notifier>,
-    uplink: Option<Uplink>,
+    uplink: Option<(Uplink, Option<uplink::Store>)>,
     /// What happens goes out through here: `/events`, the uplink.
     outbox: Arc<Outbox>,
 }
@@ -474,7 +491,13 @@ impl<V: Vehicle> Daemon<V> {
                 ..uplink::table::Limits::default()
             },
         };
-        self.uplink = Some(Uplink::new(uplink, limits, status).map_err(DaemonError::Uplink)?);
+        let uplink = Uplink::new(uplink, limits, status, Some(settings.data_dir.clone()))
+            .map_err(DaemonError::Uplink)?;
+        let store = uplink.open_store().map_err(|source| DaemonError::UplinkStore {
+            dir: settings.data_dir.join(uplink::durable::DIR),
+            source,
+        })?;
+        self.uplink = Some((uplink, store));
         Ok(self)
     }
 
@@ -518,7 +541,7 @@ impl<V: Vehicle> Daemon<V> {
         let handler = Arc::new(Counted::new(protocol(&server)));
         let sessions = handler.counter();
         let vehicle = Arc::clone(&server);
-        let uplink_status = self.uplink.as_ref().map(|u| u.status().clone());
+        let uplink_status = self.uplink.as_ref().map(|(u, _)| u.status().clone());
         let keep_alive = self.notifier.map(|notifier| {
             tokio::spawn(notify::keep_alive(notifier, move || Status {
                 sessions: sessions.load(Ordering::Relaxed),
@@ -530,10 +553,10 @@ impl<V: Vehicle> Daemon<V> {
             }))
         });
         let (stop, stopped) = watch::channel(false);
-        let uplink = self.uplink.map(|u| {
+        let uplink = self.uplink.map(|(u, store)| {
             // Sessions of its own, not counted among the connections.
             let protocol = Arc::new(protocol(&server));
-            tokio::spawn(u.run(protocol, stopped))
+            tokio::spawn(u.run(protocol, store, stopped))
         });
         let shutdown = async move {
             shutdown.await;
@@ -569,19 +592,12 @@ impl<V: Vehicle> Daemon<V> {
 
 /// The login state: the configured password, else the vehicle's stored
 /// one, else none — which is refused beyond loopback unless allowed, as
-/// the public admin value is; and the login throttle as configured.
+/// the public admin value is (the uplink counts as beyond loopback, whatever
+/// `--bind` says); and the login throttle as configured.
 pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth<LoginTable>, DaemonError> {
     let password = settings.password.clone().or(stored);
-    let beyond_loopback = !settings.bind.ip().is_loopback();
-    if password.is_none() && beyond_loopback && !settings.allow_no_password {
-        return Err(DaemonError::NoPassword(settings.bind));
-    }
-    let public_admin = settings.admin_password == lluav_core::session::DEFAULT_ADMIN_PASSWORD;
-    if public_admin && beyond_loopback && !settings.allow_default_admin {
-        return Err(DaemonError::PublicAdmin(settings.bind));
-    }
-    if password.is_none() && settings.uplink.is_some() && !settings.allow_no_password {
-        return Err(DaemonError::UplinkNoPassword);
+    if let Some(refused) = refusal(settings, password.is_some()) {
+        return Err(refused);
     }
     let lockout_ms = |d: Duration| u32::try_from(d.as_millis()).unwrap_or(u32::MAX);
     Auth::with_specials(
@@ -604,6 +620,27 @@ pub(crate) fn auth(settings: &Settings, stored: Option<String>) -> Result<Auth<L
             AuthError::Ambiguous => "the password and the admin and logout values must all differ",
         })
     })
+}
+
+/// What the start-up rules refuse in `settings`, the first one in the
+/// order they are checked; `password` says whether a password is known.
+/// The uplink is beyond loopback whatever `--bind` says: anyone the broker
+/// lets publish to the vehicle's requests reaches its login.
+pub(crate) fn refusal(settings: &Settings, password: bool) -> Option<DaemonError> {
+    let beyond_loopback = !settings.bind.ip().is_loopback();
+    let public_admin = settings.admin_password == lluav_core::session::DEFAULT_ADMIN_PASSWORD;
+    let uplink = settings.uplink.is_some();
+    if !password && beyond_loopback && !settings.allow_no_password {
+        Some(DaemonError::NoPassword(settings.bind))
+    } else if public_admin && beyond_loopback && !settings.allow_default_admin {
+        Some(DaemonError::PublicAdmin(settings.bind))
+    } else if !password && uplink && !settings.allow_no_password {
+        Some(DaemonError::UplinkNoPassword)
+    } else if public_admin && uplink && !settings.allow_default_admin {
+        Some(DaemonError::UplinkPublicAdmin)
+    } else {
+        None
+    }
 }
 
 /// The `wss://` acceptor, refused when no client would take the

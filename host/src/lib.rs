@@ -22,7 +22,8 @@
 //! - [`uplink`]: the protocol through an MQTT broker (vehicles behind NAT,
 //!   fleets), and the operator's side of it;
 //! - [`events`]: what happened, told as it happens (the `/events` stream,
-//!   the uplink's `events` topic).
+//!   the uplink's `events` topic);
+//! - [`terminal`]: text from the network made safe to print.
 
 #![warn(missing_docs)]
 
@@ -41,5 +42,6 @@ pub mod notify;
 pub mod onboard;
 pub mod recent_log;
 pub mod sim;
+pub mod terminal;
 pub mod uplink;
 pub mod vehicle;

@@ -68,9 +68,9 @@ fn prepared(airborne: bool) -> Harness {
 fn frame(spec: &Spec) -> String {
     let args = sample_args(spec);
     if args.is_empty() {
-        spec.name.to_owned()
+        spec.name().to_owned()
     } else {
-        format!("{} {args}", spec.name)
+        format!("{} {args}", spec.name())
     }
 }
 
@@ -86,7 +86,7 @@ fn every_backend_command_succeeds_in_a_suitable_state() {
         }
         // Flight commands need the vehicle in the air; the armed gate keeps
         // the others on the ground.
-        let in_air = spec.flags.run_on_arm.then(|| prepared(true).send(&frame));
+        let in_air = spec.flags.run_on_arm().then(|| prepared(true).send(&frame));
         if in_air.as_ref().is_none_or(|v| v["ret"] != 0) {
             failures.push(format!("{frame}: ground {on_ground}, air {in_air:?}"));
         }

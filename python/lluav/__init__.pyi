@@ -2730,11 +2730,11 @@ class Fleet:
     """Vehicles through an MQTT broker (lluavd ``--uplink``).
 
     Connects at once to ``url`` (``mqtt://HOST[:PORT]``, or ``mqtts://``
-    checked against the system's trust store or only ``cafile``), as
-    ``client_id`` (1-64 of ``[A-Za-z0-9_-]``; default
-    ``lluav-<user>-<random>``), with ``username``/``password`` at the
-    broker when given. ``timeout`` bounds the connection and the wait for
-    each answer, in seconds.
+    checked against the system's trust store or only ``cafile``) over MQTT
+    5, as ``client_id`` (1-64 of ``[A-Za-z0-9_-]``; default: ``username``
+    when given, else ``lluav-<random>``), with ``username``/``password`` at
+    the broker when given. ``timeout`` bounds the connection and the wait
+    for each answer, in seconds.
 
     :meth:`vehicles` lists every vehicle heard of; :meth:`vehicle` gives
     one, with the same methods as :class:`lluav.Client`. One fleet is one

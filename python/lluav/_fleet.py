@@ -14,7 +14,6 @@ classes share it.
 from __future__ import annotations
 
 import asyncio
-import getpass
 import json
 import re
 import secrets
@@ -25,6 +24,9 @@ from types import TracebackType
 from typing import Any, Callable, Optional
 
 import paho.mqtt.client as mqtt
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from . import _core, _methods
 from ._async import _make as _make_async
@@ -40,6 +42,9 @@ _URL = re.compile(r"(mqtts?)://(\[[^\]]+\]|[^:/@?#\[\]\s]+)(?::(\d+))?/?")
 _LISTING_QUIET = 0.15
 LISTING_WAIT = 1.0
 """How long the first :meth:`Fleet.vehicles` waits for retained messages at most."""
+# The largest message the fleet takes: answers are at most a response
+# buffer (64 KiB); the broker drops anything larger rather than send it.
+_MAX_PACKET = 1 << 20
 
 _encode = _core.encode
 
@@ -65,13 +70,29 @@ def _name(kind: str, value: str) -> str:
     return value
 
 
-def _default_client_id() -> str:
-    try:
-        user = getpass.getuser()
-    except (KeyError, OSError):
-        user = "op"
-    user = re.sub(r"[^A-Za-z0-9_-]", "-", user)[:40] or "op"
-    return f"lluav-{user}-{secrets.token_hex(4)}"
+def _default_client_id(username: str | None) -> str:
+    """The broker user name (the account is the identity: with the
+    recommended broker config the broker makes it the client id anyway),
+    else ``lluav-<random>``."""
+    if username is not None:
+        if not isinstance(username, str) or not _NAME.fullmatch(username):
+            raise ValueError(
+                f"the client id defaults to the broker user name, and {username!r} is not 1-64 of "
+                "[A-Za-z0-9_-]: give client_id="
+            )
+        return username
+    return f"lluav-{secrets.token_hex(4)}"
+
+
+def _unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose members are each named once (DESIGN.md,
+    "Request grammar"): which of two would be the vehicle's word?"""
+    obj: dict[str, Any] = {}
+    for name, value in pairs:
+        if name in obj:
+            raise ValueError(f"duplicate member {name!r}")
+        obj[name] = value
+    return obj
 
 
 class _Link:
@@ -90,7 +111,7 @@ class _Link:
         tls, host, port = _broker(url)
         if cafile is not None and not tls:
             raise ValueError(f"cafile is for mqtts:// URLs, not {url!r}")
-        self.client_id = _name("client id", client_id) if client_id is not None else _default_client_id()
+        self.client_id = _name("client id", client_id) if client_id is not None else _default_client_id(username)
         self.url = url
         self._lock = threading.Lock()
         self._waiting: dict[str, Deliver] = {}
@@ -105,8 +126,7 @@ class _Link:
         client = mqtt.Client(
             mqtt.CallbackAPIVersion.VERSION2,
             client_id=self.client_id,
-            clean_session=True,
-            protocol=mqtt.MQTTv311,
+            protocol=mqtt.MQTTv5,
         )
         if username is not None:
             client.username_pw_set(username, password)
@@ -118,8 +138,12 @@ class _Link:
         client.on_subscribe = self._on_subscribe
         client.on_message = self._on_message
         self._client = client
+        # Clean start and no session expiry: nothing sent while the fleet
+        # was away is delivered late, and the broker keeps nothing of it.
+        connect = Properties(PacketTypes.CONNECT)
+        connect.MaximumPacketSize = _MAX_PACKET
         try:
-            client.connect(host, port, keepalive=10)
+            client.connect(host, port, keepalive=10, clean_start=True, properties=connect)
         except (OSError, ValueError) as e:
             raise ConnectionError(f"cannot connect to the broker {url}: {e}") from e
         client.loop_start()
@@ -136,7 +160,7 @@ class _Link:
             self._connected.set()
             client.disconnect()
             return
-        # Clean session: the broker kept nothing of the last connection, and
+        # Clean start: the broker kept nothing of the last connection, and
         # neither may paho. What it still holds (a request published as the
         # link went, or one whose PUBACK never came) belongs to a caller
         # already told it failed; paho would send it again right after this
@@ -146,9 +170,9 @@ class _Link:
             client._inflight_messages = 0
         with self._lock:
             self._down = None
-        # Clean session: subscribe on every connection.
-        filters = [(f"lluav/+/res/{self.client_id}", 1), ("lluav/+/status", 1), ("lluav/+/state", 1)]
-        client.subscribe(filters)
+        # Clean start: subscribe on every connection.
+        topics = [f"lluav/+/res/{self.client_id}", "lluav/+/status", "lluav/+/state"]
+        client.subscribe([(t, SubscribeOptions(qos=1)) for t in topics])
         self._connected.set()
 
     def _on_disconnect(self, _c: Any, _u: Any, _f: Any, reason: Any, _p: Any) -> None:
@@ -163,7 +187,7 @@ class _Link:
         if len(parts) < 3 or parts[0] != "lluav" or not _NAME.fullmatch(parts[1]):
             return
         try:
-            value = json.loads(message.payload)
+            value = json.loads(message.payload, object_pairs_hook=_unique)
         except ValueError:
             return
         vehicle, kind = parts[1], "/".join(parts[2:])
@@ -290,11 +314,11 @@ class Fleet:
     """Vehicles through an MQTT broker (lluavd ``--uplink``).
 
     Connects at once to ``url`` (``mqtt://HOST[:PORT]``, or ``mqtts://``
-    checked against the system's trust store or only ``cafile``), as
-    ``client_id`` (1-64 of ``[A-Za-z0-9_-]``; default
-    ``lluav-<user>-<random>``), with ``username``/``password`` at the
-    broker when given. ``timeout`` bounds the connection and the wait for
-    each answer, in seconds.
+    checked against the system's trust store or only ``cafile``) over MQTT
+    5, as ``client_id`` (1-64 of ``[A-Za-z0-9_-]``; default: ``username``
+    when given, else ``lluav-<random>``), with ``username``/``password`` at
+    the broker when given. ``timeout`` bounds the connection and the wait
+    for each answer, in seconds.
 
     :meth:`vehicles` lists every vehicle heard of; :meth:`vehicle` gives
     one, with the same methods as :class:`lluav.Client`. One fleet is one

@@ -63,7 +63,7 @@ pub fn to_python(py: Python<'_>, command: &Command<'_>) -> PyResult<PyCommand> {
         args.set_item(param.name, value)?;
     }
     Ok(PyCommand {
-        name: spec.name,
+        name: spec.name(),
         id: spec.id.into(),
         args: args.unbind(),
         frame: command.to_string(),

@@ -22,7 +22,7 @@ impl Invalid {
     pub fn into_err(self, py: Python<'_>, spec: &Spec) -> PyErr {
         static CLASS: PyOnceLock<Py<PyType>> = PyOnceLock::new();
         match CLASS.import(py, "lluav._errors", "InvalidArguments") {
-            Ok(class) => PyErr::from_type(class.clone(), (spec.name, spec.usage, self.0)),
+            Ok(class) => PyErr::from_type(class.clone(), (spec.name(), spec.usage, self.0)),
             Err(e) => e,
         }
     }

@@ -63,7 +63,7 @@ impl PySpec {
     /// The name on the wire, and of the client method.
     #[getter]
     fn name(&self) -> &'static str {
-        self.spec.name
+        self.spec.name()
     }
 
     /// The stable id sent back as `cmd`.
@@ -100,19 +100,19 @@ impl PySpec {
     /// `runOnArm`: whether it may run while the vehicle is armed.
     #[getter]
     fn run_on_arm(&self) -> bool {
-        self.spec.flags.run_on_arm
+        self.spec.flags.run_on_arm()
     }
 
     /// `runInLock`: whether a non-admin session may run it in lock mode.
     #[getter]
     fn run_in_lock(&self) -> bool {
-        self.spec.flags.run_in_lock
+        self.spec.flags.run_in_lock()
     }
 
     /// Whether only an admin session may run it.
     #[getter]
     fn admin_only(&self) -> bool {
-        self.spec.flags.admin_only
+        self.spec.flags.admin_only()
     }
 
     /// The parameters of its client method, in order.
@@ -124,7 +124,7 @@ impl PySpec {
     fn __repr__(&self) -> String {
         format!(
             "<Spec {} (id {}): {}>",
-            self.spec.name,
+            self.spec.name(),
             u8::from(self.spec.id),
             self.spec.usage
         )

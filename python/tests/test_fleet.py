@@ -1,7 +1,9 @@
 """lluav.Fleet and lluav.AsyncFleet against real lluavd vehicles through a
-real broker (Mosquitto): the same methods, argument checks and errors as
-lluav.Client, the fleet's listing, offline vehicles, several vehicles at
-once, broker credentials and mqtts://."""
+real broker (Mosquitto), over MQTT 5: the same methods, argument checks and
+errors as lluav.Client, the fleet's listing, offline vehicles, several
+vehicles at once, broker credentials, mqtts://, the README's broker config
+and ACL (an operator's client id is its user name), and JSON with a member
+named twice."""
 
 from __future__ import annotations
 
@@ -46,9 +48,14 @@ def broker(tmp_path: Path) -> Iterator[Callable[..., Mosquitto]]:
         b.stop()
 
 
+# With an uplink lluavd refuses the spec's public admin value unless told
+# to allow it; these vehicles never need admin.
+ADMIN = "--allow-default-admin"
+
+
 def vehicle(lluavd, broker: Mosquitto, vid: str, *flags: str, password: str | None = PASSWORD):
     """lluavd on `broker` as vehicle `vid`, once its status says online."""
-    daemon = lluavd("--uplink", broker.url, "--vehicle-id", vid, *flags, password=password)
+    daemon = lluavd("--uplink", broker.url, "--vehicle-id", vid, ADMIN, *flags, password=password)
     deadline = time.monotonic() + 30
     with lluav.Fleet(broker.url, timeout=5) as f:
         while f.vehicles().get(vid, {}).get("online") is not True:
@@ -206,26 +213,29 @@ def test_async_fleet_commands_three_vehicles_at_once(lluavd, broker):
 
 
 def test_broker_credentials_and_unreachable_brokers(lluavd, broker):
-    b = broker(users={"drone": "fly-s4fe", "ops": "0ps-pw"})
+    b = broker(users={"drone-c1": "fly-s4fe", "ops": "0ps-pw"})
+    # The vehicle's id is its broker user name.
     daemon = lluavd(
         "--uplink",
         b.url,
         "--uplink-user",
-        "drone",
+        "drone-c1",
         "--uplink-password",
         "fly-s4fe",
-        "--vehicle-id",
-        "c1",
+        ADMIN,
         password=PASSWORD,
     )
     with pytest.raises(lluav.ConnectionError, match="cannot connect to the broker"):
         lluav.Fleet(b.url, username="ops", password="wrong", timeout=5)
+    with pytest.raises(ValueError, match="user name"):
+        lluav.Fleet(b.url, username="ops.1", password="0ps-pw")
     with lluav.Fleet(b.url, username="ops", password="0ps-pw") as f:
+        assert f.client_id == "ops", "the account is the identity"
         deadline = time.monotonic() + 30
-        while f.vehicles().get("c1", {}).get("online") is not True:
+        while f.vehicles().get("drone-c1", {}).get("online") is not True:
             assert time.monotonic() < deadline, daemon.stderr()
             time.sleep(0.05)
-        assert f.vehicle("c1", password=PASSWORD).ver()["ret"] == 0
+        assert f.vehicle("drone-c1", password=PASSWORD).ver()["ret"] == 0
     # Nothing listens on a port just found free.
     with pytest.raises(lluav.ConnectionError, match="cannot connect to the broker"):
         lluav.Fleet(f"mqtt://127.0.0.1:{free_port()}", timeout=2)
@@ -236,7 +246,7 @@ def test_broker_credentials_and_unreachable_brokers(lluavd, broker):
 def test_mqtts_with_a_ca_file(lluavd, broker, tmp_path):
     cert, key = self_signed(tmp_path)
     b = broker(tls=(cert, key))
-    daemon = lluavd("--uplink", b.url, "--uplink-cafile", str(cert), "--vehicle-id", "t1", password=PASSWORD)
+    daemon = lluavd("--uplink", b.url, "--uplink-cafile", str(cert), "--vehicle-id", "t1", ADMIN, password=PASSWORD)
     with lluav.Fleet(b.url, cafile=str(cert)) as f:
         deadline = time.monotonic() + 30
         while f.vehicles().get("t1", {}).get("online") is not True:
@@ -247,6 +257,67 @@ def test_mqtts_with_a_ca_file(lluavd, broker, tmp_path):
         lluav.Fleet(b.url, timeout=5)
     with pytest.raises(ValueError, match="cafile is for mqtts://"):
         lluav.Fleet("mqtt://127.0.0.1:1", cafile=str(cert))
+
+
+def test_the_readme_broker_config_with_an_account_per_operator(lluavd, broker, tmp_path):
+    cert, key = self_signed(tmp_path)
+    users = {"alice": "a-pw", "bob": "b-pw", "drone-1": "d-pw"}
+    b = broker(users=users, tls=(cert, key), recommended=True)
+    daemon = lluavd(
+        "--uplink",
+        b.url,
+        "--uplink-cafile",
+        str(cert),
+        "--uplink-user",
+        "drone-1",
+        "--uplink-password",
+        "d-pw",
+        ADMIN,
+        password=PASSWORD,
+    )
+    with lluav.Fleet(b.url, username="alice", password="a-pw", cafile=str(cert)) as f:
+        assert f.client_id == "alice"
+        deadline = time.monotonic() + 30
+        while f.vehicles().get("drone-1", {}).get("online") is not True:
+            assert time.monotonic() < deadline, daemon.stderr()
+            time.sleep(0.05)
+        v = f.vehicle("drone-1", password=PASSWORD)
+        assert v.siyi_sync()["siyi"]["syncs"] == 1
+
+        async def bob() -> int:
+            async with lluav.AsyncFleet(b.url, username="bob", password="b-pw", cafile=str(cert)) as af:
+                assert af.client_id == "bob"
+                bv = await af.vehicle("drone-1", password=PASSWORD)
+                return (await bv.siyi_sync())["siyi"]["syncs"]
+
+        # Another account is another session, each as itself.
+        assert asyncio.run(bob()) == 2
+        assert v.siyi_sync()["siyi"]["syncs"] == 3
+    # An operator whose client id is not its user name is refused by the
+    # ACL: nothing it sends reaches the vehicle.
+    with lluav.Fleet(b.url, client_id="alice2", username="alice", password="a-pw", cafile=str(cert), timeout=1) as f:
+        with pytest.raises(lluav.ConnectionError, match="did not answer"):
+            f.vehicle("drone-1").siyi_sync()
+
+
+def test_members_named_twice_are_not_read(lluavd, broker):
+    b = broker()
+    vehicle(lluavd, b, "real")
+    forger = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="forger")
+    forger.connect("127.0.0.1", b.port)
+    forger.loop_start()
+    try:
+        status = '{"vehicle":"twice","online":false,"online":true}'
+        forger.publish("lluav/twice/status", status, qos=1, retain=True).wait_for_publish(5)
+        state = '{"ret":0,"cmd":2,"ts":1,"state":{"fsm":"disarmed","fsm":"hover"}}'
+        forger.publish("lluav/twice/state", state, qos=1, retain=True).wait_for_publish(5)
+    finally:
+        forger.loop_stop()
+        forger.disconnect()
+    with lluav.Fleet(b.url) as f:
+        listing = f.vehicles()
+        assert listing["real"]["online"] is True
+        assert "twice" not in listing, listing
 
 
 def test_the_readme_fleet_script_runs(lluavd, broker):

@@ -1,35 +1,49 @@
 //! The uplink measured, in one run on one Mosquitto:
 //!
 //! ```text
-//! cargo bench -p lluav-tests --features broker --bench uplink -- [--round-trips N] [--vehicles V] [--fan-outs F]
+//! cargo bench -p lluav-tests --features broker --bench uplink -- [--round-trips N] [--vehicles V] [--fan-outs F] [--clients C] [--flood MIB]
 //! ```
 //!
 //! 1. Round trips, closed loop, one request at a time: `state` through
 //!    lluavd's uplink (a request envelope on `lluav/V/req/C`, QoS 1, the
 //!    answer on `lluav/V/res/C`, QoS 1), the same `state` over WebSocket to
-//!    the same lluavd, and a bare MQTT echo: a plain rumqttc client (this
-//!    binary re-executed with `--mqtt-echo`, a process of its own like
-//!    lluavd) answering every message on its request topic at once, on its
-//!    response topic, with a payload as long as lluavd's answer. Two rounds
-//!    that alternate the order; p50/p99 in µs and the uplink's ratio to the
-//!    echo.
-//! 2. A fleet: V lluavd (release) on the broker, each publishing its state
+//!    the same lluavd, and a bare MQTT 5 echo: a plain rumqttc `v5` client
+//!    (this binary re-executed with `--mqtt-echo`, a process of its own
+//!    like lluavd) answering every message on its request topic at once,
+//!    on its response topic, with a payload as long as lluavd's answer. Two
+//!    rounds that alternate the order; p50/p99 in µs and the uplink's ratio
+//!    to the echo. Then `siyi_sync` (a command that changes the vehicle:
+//!    its answer is synced to disk twice) against `ver` (a read), both
+//!    through the uplink.
+//! 2. The durable store on its own: N requests' two synced records
+//!    (started, answered), one request at a time, in the data directory's
+//!    file system, against writing the same records unsynced.
+//! 3. Memory: one lluavd's VmRSS and peak (VmHWM) while C distinct client
+//!    ids send it a request each through the broker, and while a stand-in
+//!    broker floods it with MIB MiB of QoS 1 requests and never reads
+//!    (tests/src/flooder.rs); against its VmRSS before, and against a
+//!    lluavd without an uplink.
+//! 4. A fleet: V lluavd (release) on the broker, each publishing its state
 //!    at 1 Hz. The broker's CPU over 10 s of that; then F fan-outs of one
 //!    `state` to every vehicle from one operator (the time from the first
 //!    request out to the last answer in); each lluavd's VmRSS, against one
 //!    lluavd without an uplink.
 //!
 //! Defaults: 2000 round trips per path and round (200 more to warm up),
-//! 100 vehicles, 50 fan-outs. The summary is Markdown for BENCHMARKS.md.
+//! 100 vehicles, 50 fan-outs, 100 000 client ids, a 256 MiB flood. The
+//! summary is Markdown for BENCHMARKS.md.
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
 use hdrhistogram::Histogram;
-use lluav_tests::broker::{Mosquitto, Mqtt};
+use lluav_host::uplink::durable::{Entry, Store};
+use lluav_tests::broker::{Mosquitto, Mqtt, QoS, topic, with_admin};
+use lluav_tests::flooder::{Flood, Flooder};
 use lluav_tests::{Lluavd, Options};
-use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use rumqttc::v5::mqttbytes::v5::{Filter, Packet};
+use rumqttc::v5::{AsyncClient, Event, MqttOptions};
 use tokio_tungstenite::tungstenite::Message;
 
 const WARM_UP: usize = 200;
@@ -38,6 +52,8 @@ struct Args {
     round_trips: usize,
     vehicles: usize,
     fan_outs: usize,
+    clients: usize,
+    flood_mib: u64,
 }
 
 fn args() -> Args {
@@ -45,6 +61,8 @@ fn args() -> Args {
         round_trips: 2000,
         vehicles: 100,
         fan_outs: 50,
+        clients: 100_000,
+        flood_mib: 256,
     };
     let argv: Vec<String> = std::env::args().collect();
     for pair in argv.windows(2) {
@@ -53,6 +71,8 @@ fn args() -> Args {
             ("--round-trips", Some(n)) => a.round_trips = n,
             ("--vehicles", Some(n)) => a.vehicles = n,
             ("--fan-outs", Some(n)) => a.fan_outs = n,
+            ("--clients", Some(n)) => a.clients = n,
+            ("--flood", Some(n)) => a.flood_mib = n as u64,
             _ => {}
         }
     }
@@ -81,22 +101,22 @@ fn serve_echo(port: u16, size: usize) {
         .expect("runtime");
     runtime.block_on(async move {
         let mut options = MqttOptions::new("bench-echo", "127.0.0.1", port);
-        options.set_max_packet_size(1 << 20, 1 << 20);
-        let (client, mut events) = AsyncClient::new(options, 1024);
-        let answer = vec![b'x'; size];
+        options.set_max_packet_size(Some(1 << 20));
         let mut network = rumqttc::NetworkOptions::new();
         network.set_tcp_nodelay(true);
-        events.set_network_options(network);
+        options.set_network_options(network);
+        let (client, mut events) = AsyncClient::new(options, 1024);
+        let answer = vec![b'x'; size];
         loop {
             match events.poll().await {
                 Ok(Event::Incoming(Packet::ConnAck(_))) => {
                     client
-                        .try_subscribe("echo/req/+", QoS::AtLeastOnce)
+                        .try_subscribe_many([Filter::new("echo/req/+", QoS::AtLeastOnce)])
                         .expect("subscribe queued");
                 }
                 Ok(Event::Incoming(Packet::SubAck(_))) => println!("ready"),
                 Ok(Event::Incoming(Packet::Publish(p))) => {
-                    let topic = p.topic.replacen("/req/", "/res/", 1);
+                    let topic = topic(&p).replacen("/req/", "/res/", 1);
                     let _ = client.try_publish(topic, QoS::AtLeastOnce, false, answer.clone());
                 }
                 Ok(_) => {}
@@ -110,6 +130,9 @@ fn serve_echo(port: u16, size: usize) {
 struct Requester {
     mqtt: Mqtt,
     topic: String,
+    /// Request ids are never reused: a repeated id is answered from the
+    /// vehicle's memory without running.
+    next_id: usize,
 }
 
 impl Requester {
@@ -119,13 +142,19 @@ impl Requester {
         Requester {
             mqtt,
             topic: requests,
+            next_id: 0,
         }
     }
 
     async fn run(&mut self, n: usize, h: &mut Histogram<u64>) -> usize {
+        self.run_frame("state", n, h).await
+    }
+
+    async fn run_frame(&mut self, frame: &str, n: usize, h: &mut Histogram<u64>) -> usize {
         let mut size = 0;
         for i in 0..n + WARM_UP {
-            let envelope = format!(r#"{{"id":"{i}","frame":"state"}}"#);
+            self.next_id += 1;
+            let envelope = format!(r#"{{"id":"{}","frame":"{frame}"}}"#, self.next_id);
             let sent = Instant::now();
             self.mqtt
                 .publish(&self.topic, envelope, QoS::AtLeastOnce, false)
@@ -199,6 +228,14 @@ async fn round_trips(a: &Args) {
     }
     let _ = echo_process.kill();
     let _ = echo_process.wait();
+    // A command whose answer is kept on disk against a read, alternating.
+    let (mut h_sync, mut h_ver) = (histogram(), histogram());
+    for _ in 0..2 {
+        uplink
+            .run_frame("siyi_sync", a.round_trips / 2, &mut h_sync)
+            .await;
+        uplink.run_frame("ver", a.round_trips / 2, &mut h_ver).await;
+    }
     println!(
         "\n`state` round trips, closed loop, {} per path and round, 2 rounds ({size}-byte answers):\n",
         a.round_trips
@@ -218,7 +255,187 @@ async fn round_trips(a: &Args) {
             us(h, 0.99) / us(&h_echo, 0.99)
         );
     }
+    println!(
+        "\nThrough the uplink, {} per command (2 rounds): `siyi_sync` changes the vehicle (its answer is \
+         synced to disk before it runs and again before it is sent); `ver` reads:\n",
+        a.round_trips
+    );
+    println!("| command | p50 µs | p99 µs | p50 − ver's p50 |");
+    println!("|---|---:|---:|---:|");
+    for (name, h) in [("siyi_sync", &h_sync), ("ver", &h_ver)] {
+        println!(
+            "| {name} | {:.0} | {:.0} | {:.0} µs |",
+            us(h, 0.5),
+            us(h, 0.99),
+            us(h, 0.5) - us(&h_ver, 0.5)
+        );
+    }
     let _ = daemon.terminate();
+}
+
+/// The durable store alone: each request's two records written and synced
+/// (as lluavd does for a command that changes the vehicle), one request
+/// at a time, against the same records written without a sync.
+async fn store_cost(a: &Args) {
+    let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).expect("temp dir");
+    let now = lluav_host::uplink::serve::unix_ms();
+    let (store, _) = Store::open(dir.path(), Duration::from_secs(600), now).expect("store");
+    let answer = format!(r#"{{"id":"x","response":{{"ret":0,"cmd":51,"ts":{now},"siyi":{{"syncs":1}}}}}}"#);
+    let entries = |n: usize| {
+        let started = Entry::Started {
+            client: "bench".into(),
+            id: format!("r{n}"),
+            at: now,
+            cmd: 51,
+        };
+        let answered = Entry::Answered {
+            client: "bench".into(),
+            id: format!("r{n}"),
+            at: now,
+            answer: Some(answer.clone()),
+        };
+        (started, answered)
+    };
+    let (mut synced, mut unsynced) = (histogram(), histogram());
+    for n in 0..a.round_trips + WARM_UP {
+        let (started, answered) = entries(n);
+        let t = Instant::now();
+        store.write(started).await.expect("written");
+        store.write(answered).await.expect("written");
+        if n >= WARM_UP {
+            record(&mut synced, t);
+        }
+    }
+    let mut plain = std::fs::File::create(dir.path().join("unsynced")).expect("file");
+    for n in 0..a.round_trips + WARM_UP {
+        let (started, answered) = entries(n);
+        let t = Instant::now();
+        for entry in [started, answered] {
+            let line = format!("{entry:?}\n");
+            std::io::Write::write_all(&mut plain, line.as_bytes()).expect("written");
+        }
+        if n >= WARM_UP {
+            record(&mut unsynced, t);
+        }
+    }
+    println!(
+        "\nThe durable store on its own ({} requests, two records each, in {}):\n",
+        a.round_trips,
+        env!("CARGO_TARGET_TMPDIR")
+    );
+    println!("| records | p50 µs per request | p99 µs per request |");
+    println!("|---|---:|---:|");
+    println!(
+        "| written and synced (lluavd) | {:.0} | {:.0} |",
+        us(&synced, 0.5),
+        us(&synced, 0.99)
+    );
+    println!(
+        "| written, not synced (baseline) | {:.1} | {:.1} |",
+        us(&unsynced, 0.5),
+        us(&unsynced, 0.99)
+    );
+}
+
+/// (VmRSS, VmHWM) of process `pid`, in KiB.
+fn memory_kib(pid: u32) -> (f64, f64) {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    let field = |name: &str| {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(name))
+            .and_then(|v| v.trim().strip_suffix("kB"))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(0.0)
+    };
+    (field("VmRSS:"), field("VmHWM:"))
+}
+
+/// One lluavd's memory while `a.clients` distinct client ids send it a
+/// request each through the broker, and while a stand-in broker floods it.
+async fn memory(a: &Args) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plain = Lluavd::start(&dir.path().join("plain"), &Options::default());
+    let broker = Mosquitto::start();
+    let options = Options::default().with_args(&["--allow-no-password"]);
+    let daemon = lluav_tests::broker::vehicle(&dir.path().join("ids"), &broker, "mem", options.clone()).await;
+    let mut op = Mqtt::connect(&broker, "mem-op").await;
+    op.subscribe("lluav/mem/res/+").await;
+    let (before, _) = memory_kib(daemon.pid());
+    // At most this many unanswered: the broker queues 1000 messages for a
+    // client and drops the rest.
+    const WINDOW: usize = 200;
+    let (mut sent, mut answered) = (0, 0);
+    let mut refusals: std::collections::BTreeMap<String, usize> = Default::default();
+    let mut peak_rss: f64 = 0.0;
+    while answered < a.clients {
+        if sent < a.clients && sent - answered < WINDOW {
+            let envelope = r#"{"id":"1","frame":"state"}"#;
+            op.publish(
+                &format!("lluav/mem/req/c{sent}"),
+                envelope,
+                QoS::AtLeastOnce,
+                false,
+            )
+            .await;
+            sent += 1;
+            continue;
+        }
+        let p = op.next().await;
+        let v: serde_json::Value = serde_json::from_slice(&p.payload).expect("JSON");
+        if v["response"]["ret"] != 0 {
+            let msg = v["response"]["msg"].as_str().unwrap_or("?").to_owned();
+            *refusals.entry(msg).or_default() += 1;
+        }
+        answered += 1;
+        if answered % 1000 == 0 {
+            peak_rss = peak_rss.max(memory_kib(daemon.pid()).0);
+        }
+    }
+    let (after, peak) = memory_kib(daemon.pid());
+    let _ = daemon.terminate();
+
+    let flooder = Flooder::start(
+        "flood",
+        Flood {
+            bytes: a.flood_mib << 20,
+            message: 4 << 10,
+            clients: 16 << 10,
+        },
+    );
+    let fdir = dir.path().join("flood");
+    let options =
+        with_admin(&fdir, options).with_args(&["--uplink", &flooder.url(), "--vehicle-id", "flood"]);
+    let flooded = Lluavd::start(&fdir, &options);
+    flooder.wait_subscribed();
+    let (flood_before, _) = memory_kib(flooded.pid());
+    let t = Instant::now();
+    flooder.go();
+    while !flooder.ended() {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let flood_s = t.elapsed().as_secs_f64();
+    let (flood_after, flood_peak) = memory_kib(flooded.pid());
+    let flood_sent = flooder.sent();
+    let _ = flooded.terminate();
+    let no_uplink = memory_kib(plain.pid()).0;
+    let _ = plain.terminate();
+    println!("\nlluavd's memory (KiB; a lluavd without an uplink: {no_uplink:.0} KiB VmRSS):\n");
+    println!("| load | VmRSS before | VmRSS after | peak (VmHWM) | peak − before |");
+    println!("|---|---:|---:|---:|---:|");
+    println!(
+        "| {} distinct client ids, one `state` each | {before:.0} | {after:.0} | {:.0} | {:.0} |",
+        a.clients,
+        peak.max(peak_rss),
+        peak.max(peak_rss) - before
+    );
+    println!(
+        "| a stand-in broker flooding {} MiB of QoS 1 requests in {flood_s:.1} s, never reading | \
+         {flood_before:.0} | {flood_after:.0} | {flood_peak:.0} | {:.0} |",
+        flood_sent >> 20,
+        flood_peak - flood_before
+    );
+    println!("\nRefusals among the {} answers: {refusals:?}", a.clients);
 }
 
 /// (utime + stime) in seconds of process `pid`.
@@ -237,13 +454,7 @@ fn cpu_s(pid: u32) -> f64 {
 }
 
 fn rss_kib(pid: u32) -> f64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.trim().strip_suffix("kB"))
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap_or(0.0)
+    memory_kib(pid).0
 }
 
 async fn fleet(a: &Args) {
@@ -263,7 +474,8 @@ async fn fleet(a: &Args) {
             "1",
             "--allow-no-password",
         ]);
-        vehicles.push(Lluavd::start(&dir.path().join(id), &options));
+        let data = dir.path().join(id);
+        vehicles.push(Lluavd::start(&data, &with_admin(&data, options)));
     }
     let mut online = std::collections::HashSet::new();
     while online.len() < a.vehicles {
@@ -368,6 +580,10 @@ fn main() {
         .expect("runtime");
     runtime.block_on(async {
         round_trips(&a).await;
-        fleet(&a).await;
+        store_cost(&a).await;
+        memory(&a).await;
+        if a.vehicles > 0 {
+            fleet(&a).await;
+        }
     });
 }

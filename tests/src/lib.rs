@@ -16,8 +16,12 @@
 //! [`target::Target`] is the server of the tests every adapter must pass
 //! (`tests/mcu.rs`): lluavd at the MCU's limits, or the firmware on the
 //! emulated board when `LLUAV_TEST_BOARD` says how to start one.
+//!
+//! For the uplink: [`broker`] starts real Mosquittos and speaks MQTT 5 to
+//! them; [`flooder`] is a stand-in broker that floods and never reads.
 
 pub mod broker;
+pub mod flooder;
 pub mod target;
 
 use std::io::{BufRead, BufReader, Read};

@@ -91,9 +91,9 @@ async fn every_command_of_the_table_gets_exactly_one_answer_of_its_own() {
     for spec in &TABLE {
         let args = sample_args(spec.grammar);
         let frame = if args.is_empty() {
-            spec.name.to_owned()
+            spec.name().to_owned()
         } else {
-            format!("{} {args}", spec.name)
+            format!("{} {args}", spec.name())
         };
         let r = c.request(&frame).await;
         assert_eq!(
@@ -105,7 +105,7 @@ async fn every_command_of_the_table_gets_exactly_one_answer_of_its_own() {
         assert_ne!(r["ret"], -100, "`{frame}` hit a fault: {r}");
         assert_ne!(msg(&r), "Response too large", "`{frame}`: {r}");
         if spec.id == CommandId::Help {
-            let names: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
+            let names: Vec<&str> = TABLE.iter().map(|s| s.name()).collect();
             assert_eq!(r["commands"], serde_json::json!(names), "help lists the table");
         }
         if spec.id == CommandId::State {

@@ -137,9 +137,9 @@ async fn every_command_of_the_table_gets_exactly_one_valid_response(scheme: Sche
     for spec in &TABLE {
         let args = sample_args(spec.grammar);
         let frame = if args.is_empty() {
-            spec.name.to_owned()
+            spec.name().to_owned()
         } else {
-            format!("{} {args}", spec.name)
+            format!("{} {args}", spec.name())
         };
         assert!(
             lluav_core::parse(&frame).is_ok(),
@@ -156,7 +156,7 @@ async fn every_command_of_the_table_gets_exactly_one_valid_response(scheme: Sche
         assert!(!msg(&r).starts_with("Invalid arguments, usage"), "`{frame}`: {r}");
         assert_ne!(r["ret"], -100, "`{frame}` hit a fault in the simulator: {r}");
         if spec.id == CommandId::Help {
-            let names: Vec<&str> = TABLE.iter().map(|s| s.name).collect();
+            let names: Vec<&str> = TABLE.iter().map(|s| s.name()).collect();
             assert_eq!(r["commands"], serde_json::json!(names), "help lists the table");
         }
         if spec.id == CommandId::State {

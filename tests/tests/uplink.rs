@@ -1,17 +1,23 @@
 //! lluavd's MQTT uplink against a real broker (Mosquitto, started here on
 //! a free port with its own config): requests and gates per client id,
-//! repeats, bad input, status and will, state publishing, broker restarts,
-//! mqtts, credentials, bridged brokers, several vehicles, and the `lluav
-//! --broker` command line. Needs `--features broker` (scripts/test-uplink.sh).
+//! repeats (also across a restart and an eviction), bad input, oversized
+//! messages, status and will, state publishing, broker restarts, mqtts,
+//! credentials, the README's broker config and ACL, bridged brokers,
+//! several vehicles, the `lluav --broker` command line, what its requests
+//! did told on the `/events` stream, and a stand-in broker that floods and
+//! never reads. Needs `--features broker` (scripts/test-uplink.sh).
 
 use std::collections::{HashMap, HashSet};
 use std::os::unix::net::UnixDatagram;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use lluav_tests::broker::{BrokerOptions, Mosquitto, Mqtt, vehicle};
+use lluav_tests::broker::{
+    ADMIN, BrokerOptions, Mosquitto, Mqtt, PublishProperties, QoS, topic, vehicle, vehicle_options,
+    with_admin,
+};
+use lluav_tests::flooder::{Flood, Flooder};
 use lluav_tests::{Conn, Lluavd, Options, WAIT, lluav_bin, lluavd_bin, test_ca};
-use rumqttc::QoS;
 use serde_json::Value;
 
 const PASSWORD: &str = "s3cret";
@@ -160,7 +166,7 @@ async fn gates_and_sessions_are_per_client_id() {
     // Admin is per session: Bob locks, Alice is refused what lock mode
     // forbids, Bob (admin) is not.
     assert_eq!(
-        b.request("v1", "bob", "2", "login 1025").await["response"]["admin"],
+        b.request("v1", "bob", "2", &format!("login {ADMIN}")).await["response"]["admin"],
         true
     );
     assert_eq!(ret(&b.request("v1", "bob", "3", "admin_lock").await), 0);
@@ -248,33 +254,36 @@ async fn a_repeated_id_is_answered_from_memory_and_never_run_twice() {
     // Another client's "s1" is its own.
     let mut other = operator(&broker, "other").await;
     assert_eq!(syncs(&other.request("v1", "other", "s1", "siyi_sync").await), 2);
-    // A burst of copies of new ids (QoS 1 redelivery, retries): each id
-    // runs once and every copy is answered.
-    for _ in 0..3 {
-        for n in 0..20 {
-            let envelope = serde_json::json!({"id": format!("b{n}"), "frame": "siyi_sync"}).to_string();
-            op.publish("lluav/v1/req/op", envelope, QoS::AtLeastOnce, false)
+    // A burst of copies of new ids (QoS 1 redelivery, retries), sent back
+    // to back so that copies arrive while their first still runs: each id
+    // runs once and every copy gets an answer of its own, the same one.
+    for n in 0..20 {
+        let envelope = serde_json::json!({"id": format!("b{n}"), "frame": "siyi_sync"}).to_string();
+        for _ in 0..3 {
+            op.publish("lluav/v1/req/op", envelope.clone(), QoS::AtLeastOnce, false)
                 .await;
         }
     }
-    let mut answers: HashMap<String, Vec<u64>> = HashMap::new();
-    while answers.values().map(Vec::len).sum::<usize>() < 60 {
-        let Some(p) = op.next_within(Duration::from_secs(5)).await else {
+    // Every answer to those goes out before the answer to a later request
+    // of the same client: what comes before this one is all there is.
+    let sentinel = serde_json::json!({"id": "after", "frame": "state"}).to_string();
+    op.publish("lluav/v1/req/op", sentinel, QoS::AtLeastOnce, false)
+        .await;
+    let mut answers: HashMap<String, Vec<Value>> = HashMap::new();
+    loop {
+        let (_, v) = op.json().await;
+        let id = v["id"].as_str().expect("id").to_owned();
+        if id == "after" {
             break;
-        };
-        let v: Value = serde_json::from_slice(&p.payload).expect("JSON");
-        answers
-            .entry(v["id"].as_str().expect("id").to_owned())
-            .or_default()
-            .push(syncs(&v));
+        }
+        answers.entry(id).or_default().push(v);
     }
     assert_eq!(answers.len(), 20, "{answers:?}");
-    for (id, counts) in &answers {
-        assert!(!counts.is_empty(), "{id} unanswered");
-        assert!(
-            counts.iter().all(|c| *c == counts[0]),
-            "{id} ran more than once: {counts:?}"
-        );
+    let mut runs = HashSet::new();
+    for (id, copies) in &answers {
+        assert_eq!(copies.len(), 3, "{id}: one answer per copy: {copies:?}");
+        assert!(copies.iter().all(|c| *c == copies[0]), "{id}: {copies:?}");
+        assert!(runs.insert(syncs(&copies[0])), "two ids share a run");
     }
     let last = op.request("v1", "op", "s-last", "siyi_sync").await;
     assert_eq!(syncs(&last), 23, "2 before, 20 ids, this one");
@@ -318,6 +327,16 @@ async fn unreadable_envelopes_are_answered_and_stray_topics_ignored() {
             "big".into(),
             "larger than 4096 bytes",
         ),
+        (
+            br#"{"id":"d","frame":"ver","frame":"login 1025"}"#.to_vec(),
+            "d".into(),
+            "duplicate member \"frame\"",
+        ),
+        (
+            br#"{"id":"d2","id":"d3","frame":"state"}"#.to_vec(),
+            Value::Null,
+            "duplicate member \"id\"",
+        ),
     ];
     for (payload, id, why) in cases {
         op.publish("lluav/v1/req/op", payload, QoS::AtLeastOnce, false)
@@ -337,40 +356,24 @@ async fn unreadable_envelopes_are_answered_and_stray_topics_ignored() {
     let empty = op.request("v1", "op", "e", "").await;
     assert_eq!(empty["response"]["msg"], "Empty command");
     // Client ids outside the alphabet get nothing (nowhere safe to answer);
-    // the vehicle carries on.
+    // the vehicle carries on. Whatever it sent would come before the
+    // answer to a request sent after it.
     let mut odd = Mqtt::connect(&broker, "odd").await;
     odd.subscribe("lluav/v1/res/#").await;
     let envelope = r#"{"id":"1","frame":"state"}"#;
     odd.publish("lluav/v1/req/bad.id", envelope, QoS::AtLeastOnce, false)
         .await;
-    assert!(odd.next_within(Duration::from_millis(500)).await.is_none());
-    assert_eq!(
-        op.request("v1", "op", "after", "state").await["response"]["ret"],
-        0
-    );
-    // An envelope beyond what the connection reads at all costs one
-    // reconnection, not the vehicle.
+    let after = odd.request("v1", "odd-ok", "after", "state").await;
+    assert_eq!(after["response"]["ret"], 0);
+    // A message over the vehicle's Maximum Packet Size never reaches it:
+    // the broker drops it, nobody is answered, and the connection holds.
     op.publish("lluav/v1/req/op", vec![b'x'; 64 * 1024], QoS::AtLeastOnce, false)
         .await;
-    let start = Instant::now();
-    loop {
-        let envelope = serde_json::json!({"id": "again", "frame": "state"}).to_string();
-        op.publish("lluav/v1/req/op", envelope, QoS::AtLeastOnce, false)
-            .await;
-        if let Some(p) = op.next_within(Duration::from_secs(1)).await {
-            let v: Value = serde_json::from_slice(&p.payload).expect("JSON");
-            if v["id"] == "again" {
-                break;
-            }
-        }
-        assert!(
-            start.elapsed() < WAIT,
-            "the vehicle never came back:\n{}",
-            daemon.stderr()
-        );
-    }
+    let next = op.request("v1", "op", "again", "state").await;
+    assert_eq!(next["response"]["ret"], 0);
     let log = daemon.stderr();
     assert_eq!(log.matches("ignored").count(), 1, "logged once:\n{log}");
+    assert!(!log.contains("uplink down"), "{log}");
     assert_eq!(daemon.terminate().code(), Some(0));
 }
 
@@ -386,17 +389,24 @@ async fn nothing_sent_while_the_vehicle_was_away_runs_late() {
     }
     let dir = tempfile::tempdir().expect("temp dir");
     let daemon = vehicle(dir.path(), &broker, "v1", open_vehicle()).await;
-    let now = op.request("v1", "op", "now", "siyi_sync").await;
+    // With a Message Expiry, as an operator may send it.
+    let envelope = serde_json::json!({"id": "now", "frame": "siyi_sync"}).to_string();
+    let expiry = PublishProperties {
+        message_expiry_interval: Some(60),
+        ..PublishProperties::default()
+    };
+    op.publish_with("lluav/v1/req/op", envelope, QoS::AtLeastOnce, false, Some(expiry))
+        .await;
+    let (_, now) = op.json().await;
+    assert_eq!(now["id"], "now", "no answer to either before it: {now}");
     assert_eq!(now["response"]["siyi"]["syncs"], 1, "neither ran: {now}");
-    assert!(
-        op.next_within(Duration::from_millis(500)).await.is_none(),
-        "no answer to either"
-    );
-    assert!(
-        daemon.stderr().contains("a retained request"),
-        "{}",
-        daemon.stderr()
-    );
+    // The retained one is still at the broker: Retain Handling 2 kept it
+    // away from the vehicle, which never saw it.
+    let mut late = Mqtt::connect(&broker, "late").await;
+    late.subscribe("lluav/v1/req/op").await;
+    let kept = late.next().await;
+    assert!(kept.retain && String::from_utf8_lossy(&kept.payload).contains("kept"));
+    assert!(!daemon.stderr().contains("retained"), "{}", daemon.stderr());
     assert_eq!(daemon.terminate().code(), Some(0));
 }
 
@@ -458,7 +468,7 @@ async fn status_is_retained_with_a_will_and_offline_on_a_clean_stop() {
         let p = watch.next().await;
         assert!(p.retain, "status is retained");
         let v: Value = serde_json::from_slice(&p.payload).expect("JSON");
-        retained.insert(p.topic, v);
+        retained.insert(topic(&p), v);
     }
     let online = &retained["lluav/clean/status"];
     assert_eq!(
@@ -652,11 +662,18 @@ async fn mqtts_with_a_private_ca() {
             ca,
             "--vehicle-id",
             "tls",
+            "--allow-default-admin",
         ]),
     );
     let system_roots = Lluavd::start(
         &dir.path().join("b"),
-        &open_vehicle().with_args(&["--uplink", &broker.url, "--vehicle-id", "plain"]),
+        &open_vehicle().with_args(&[
+            "--uplink",
+            &broker.url,
+            "--vehicle-id",
+            "plain",
+            "--allow-default-admin",
+        ]),
     );
     let mut ws = Conn::connect(&trusting.url).await;
     wait_uplink(&trusting, &mut ws, "up").await;
@@ -690,7 +707,13 @@ async fn mqtts_with_a_private_ca() {
     // A CA file that is not one is refused at start.
     let bad = Lluavd::try_start(
         &dir.path().join("c"),
-        &open_vehicle().with_args(&["--uplink", &broker.url, "--uplink-cafile", "/dev/null"]),
+        &open_vehicle().with_args(&[
+            "--uplink",
+            &broker.url,
+            "--uplink-cafile",
+            "/dev/null",
+            "--allow-default-admin",
+        ]),
         &[],
     );
     let Err((status, stderr)) = bad else {
@@ -705,23 +728,24 @@ async fn mqtts_with_a_private_ca() {
 async fn broker_credentials_from_flags_the_environment_and_a_password_file() {
     let broker = Mosquitto::with(&BrokerOptions {
         users: vec![
-            ("drone".into(), "fly-s4fe".into()),
+            ("drone-a".into(), "fly-s4fe".into()),
+            ("drone-b".into(), "fly-b".into()),
             ("ops".into(), "0ps-pw".into()),
         ],
         ..BrokerOptions::default()
     });
     let dir = tempfile::tempdir().expect("temp dir");
+    // The vehicle id is the broker user name.
     let by_flag = Lluavd::start(
         &dir.path().join("a"),
         &open_vehicle().with_args(&[
             "--uplink",
             &broker.url,
             "--uplink-user",
-            "drone",
+            "drone-a",
             "--uplink-password",
             "fly-s4fe",
-            "--vehicle-id",
-            "a",
+            "--allow-default-admin",
         ]),
     );
     let wrong = Lluavd::start(
@@ -730,11 +754,10 @@ async fn broker_credentials_from_flags_the_environment_and_a_password_file() {
             "--uplink",
             &broker.url,
             "--uplink-user",
-            "drone",
+            "drone-b",
             "--uplink-password",
             "nope",
-            "--vehicle-id",
-            "b",
+            "--allow-default-admin",
         ]),
     );
     let mut ws = Conn::connect(&by_flag.url).await;
@@ -746,7 +769,7 @@ async fn broker_credentials_from_flags_the_environment_and_a_password_file() {
             "--broker-user",
             "ops",
             "--vehicle",
-            "a",
+            "drone-a",
             "ver",
         ],
         "",
@@ -764,7 +787,7 @@ async fn broker_credentials_from_flags_the_environment_and_a_password_file() {
         "--broker-user",
         "ops",
         "--vehicle",
-        "a",
+        "drone-a",
         "ver",
     ])
     .env("LLUAV_BROKER_PASSWORD", "0ps-pw");
@@ -959,9 +982,12 @@ fn status_until(socket: &UnixDatagram, want: &str) -> Vec<String> {
     let mut seen = Vec::new();
     let mut buf = [0u8; 4096];
     loop {
-        let n = socket
-            .recv(&mut buf)
-            .unwrap_or_else(|e| panic!("no {want:?} ({e}); saw {seen:?}"));
+        let n = match socket.recv(&mut buf) {
+            Ok(n) => n,
+            // A signal to this process (a child's exit) cuts a timed wait short.
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => panic!("no {want:?} ({e}); saw {seen:?}"),
+        };
         let text = String::from_utf8_lossy(buf.get(..n).unwrap_or_default()).into_owned();
         seen.extend(
             text.lines()
@@ -980,11 +1006,12 @@ async fn the_service_status_line_says_whether_the_uplink_is_up() {
     let dir = tempfile::tempdir().expect("temp dir");
     let socket_path = dir.path().join("notify");
     let socket = UnixDatagram::bind(&socket_path).expect("notify socket");
-    let mut daemon = Command::new(lluavd_bin())
+    let daemon = Command::new(lluavd_bin())
         .args([
             "--bind",
             "127.0.0.1:0",
             "--allow-no-password",
+            "--allow-default-admin",
             "--vehicle-id",
             "v1",
         ])
@@ -998,15 +1025,29 @@ async fn the_service_status_line_says_whether_the_uplink_is_up() {
         .stderr(Stdio::null())
         .spawn()
         .expect("lluavd spawns");
+    // Killed if the test fails before it stops it.
+    let mut daemon = KillOnDrop(daemon);
     status_until(&socket, "0 sessions; simulated vehicle; uplink up");
     broker.stop();
     status_until(&socket, "0 sessions; simulated vehicle; uplink down");
     broker.run();
     status_until(&socket, "0 sessions; simulated vehicle; uplink up");
     let _ = Command::new("kill")
-        .args(["-TERM", &daemon.id().to_string()])
+        .args(["-TERM", &daemon.0.id().to_string()])
         .status();
-    assert_eq!(daemon.wait().expect("lluavd ends").code(), Some(0));
+    assert_eq!(daemon.0.wait().expect("lluavd ends").code(), Some(0));
+}
+
+/// A child process killed when this goes out of scope.
+struct KillOnDrop(std::process::Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        if matches!(self.0.try_wait(), Ok(None)) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
 }
 
 #[test]
@@ -1017,8 +1058,21 @@ fn bad_uplink_settings_are_refused_at_start() {
         &["--uplink", "mqtt://broker", "--vehicle-id", "a/b"],
         &["--uplink", "mqtt://broker", "--uplink-state-hz", "11"],
         &["--uplink", "mqtt://broker", "--uplink-cafile", "ca.pem"],
+        // The broker account is the vehicle's identity.
+        &[
+            "--uplink",
+            "mqtt://broker",
+            "--uplink-user",
+            "drone-1",
+            "--vehicle-id",
+            "drone-2",
+        ],
+        &["--uplink", "mqtt://broker", "--uplink-user", "drone.1"],
     ] {
-        let started = Lluavd::try_start(&dir.path().join("x"), &open_vehicle().with_args(args), &[]);
+        let options = open_vehicle()
+            .with_args(args)
+            .with_args(&["--allow-default-admin"]);
+        let started = Lluavd::try_start(&dir.path().join("x"), &options, &[]);
         let Err((status, stderr)) = started else {
             panic!("started with {args:?}")
         };
@@ -1033,7 +1087,13 @@ fn bad_uplink_settings_are_refused_at_start() {
     for password in [None, Some(PASSWORD)] {
         let options = Options {
             password: password.map(str::to_owned),
-            ..Options::default().with_args(&["--uplink", "mqtt://127.0.0.1:1", "--vehicle-id", "v"])
+            ..Options::default().with_args(&[
+                "--uplink",
+                "mqtt://127.0.0.1:1",
+                "--vehicle-id",
+                "v",
+                "--allow-default-admin",
+            ])
         };
         match Lluavd::try_start(&dir.path().join("y"), &options, &[]) {
             Ok(daemon) => {
@@ -1049,95 +1109,668 @@ fn bad_uplink_settings_are_refused_at_start() {
     }
 }
 
-/// The README's Mosquitto ACL, as written.
-fn readme_acl() -> String {
-    let readme =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md")).expect("README");
-    let start = readme
-        .find("```text\n# /etc/mosquitto/lluav.acl")
-        .expect("the ACL block");
-    let block = &readme[start + "```text\n".len()..];
-    block[..block.find("```").expect("its end")].to_owned()
+/// `lluavd --check-config` with `args`: exit status and stderr.
+fn check_config(args: &[&str]) -> (Option<i32>, String) {
+    let out = Command::new(lluavd_bin())
+        .arg("--check-config")
+        .args(args)
+        .env_remove("LLUAV_PASSWORD")
+        .env_remove("LLUAV_UPLINK_PASSWORD")
+        .output()
+        .expect("lluavd runs");
+    (out.status.code(), text(&out.stderr))
 }
 
 #[tokio::test]
-async fn the_readme_acl_lets_each_operator_and_vehicle_use_only_its_own_topics() {
+async fn the_public_admin_value_is_refused_with_an_uplink_unless_replaced_or_allowed() {
+    let broker = Mosquitto::start();
     let dir = tempfile::tempdir().expect("temp dir");
-    let acl = dir.path().join("lluav.acl");
-    std::fs::write(&acl, readme_acl()).expect("ACL written");
-    let broker = Mosquitto::with(&BrokerOptions {
-        users: vec![
-            ("alice".into(), "a-pw".into()),
-            ("mallory".into(), "m-pw".into()),
-            ("drone-1".into(), "d-pw".into()),
-        ],
-        extra: format!("acl_file {}\n", acl.display()),
-        ..BrokerOptions::default()
-    });
-    let daemon = Lluavd::start(
-        &dir.path().join("v"),
+    let data = dir.path().join("v");
+    let data = data.to_str().expect("UTF-8 path");
+    // Bound to loopback, as the README's example is: the broker's users are
+    // not, and 1025 is in the public spec.
+    let args = [
+        "--password",
+        PASSWORD,
+        "--uplink",
+        &broker.url,
+        "--vehicle-id",
+        "v1",
+    ];
+    let refused = Lluavd::try_start(dir.path(), &Options::default().with_args(&args), &[]);
+    let Err((status, stderr)) = refused else {
+        panic!("lluavd served the public admin value through the broker")
+    };
+    assert_eq!(status.and_then(|s| s.code()), Some(2), "{stderr}");
+    for says in ["--uplink", "1025", "admin_password", "--allow-default-admin"] {
+        assert!(stderr.contains(says), "the refusal says {says}: {stderr}");
+    }
+    let args = [&["--bind", "127.0.0.1:0", "--data-dir", data][..], &args].concat();
+    // --check-config says the same, and why.
+    let (code, stderr) = check_config(&args);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(
+        stderr.contains("admin_password") && stderr.contains("--allow-default-admin"),
+        "{stderr}"
+    );
+    let config = dir.path().join("admin.toml");
+    std::fs::write(&config, format!("admin_password = \"{ADMIN}\"\n")).expect("config");
+    let config = config.to_str().expect("UTF-8 path");
+    let (code, stderr) = check_config(&[&args[..], &["--config", config]].concat());
+    assert_eq!(code, Some(0), "{stderr}");
+    // With an admin value of its own, 1025 is a wrong password like any.
+    let daemon = vehicle(
+        &dir.path().join("own"),
+        &broker,
+        "v1",
+        Options::password(PASSWORD),
+    )
+    .await;
+    let mut op = operator(&broker, "op").await;
+    let r = op.request("v1", "op", "1", "login 1025").await;
+    assert_eq!(r["response"]["msg"], "Wrong password!", "{r}");
+    let r = op.request("v1", "op", "2", "admin_lock").await;
+    assert_eq!(r["response"]["msg"], "Login first!", "{r}");
+    let r = op.request("v1", "op", "3", &format!("login {ADMIN}")).await;
+    assert_eq!(r["response"]["admin"], true, "{r}");
+    assert_eq!(daemon.terminate().code(), Some(0));
+    // Allowed: it starts, and says what it allows.
+    let allowed = Lluavd::start(
+        &dir.path().join("allowed"),
         &Options::password(PASSWORD).with_args(&[
             "--uplink",
             &broker.url,
             "--vehicle-id",
-            "drone-1",
-            "--uplink-user",
-            "drone-1",
-            "--uplink-password",
-            "d-pw",
+            "v2",
+            "--allow-default-admin",
         ]),
     );
-    let login = |user: &str, password: &str| {
-        let mut o = rumqttc::MqttOptions::new(user, "127.0.0.1", broker.port);
-        o.set_credentials(user, password);
-        o
-    };
-    let mut alice = Mqtt::with(login("alice", "a-pw")).await.expect("alice connects");
+    let start = Instant::now();
+    while !allowed.stderr().contains("admin_password") {
+        assert!(start.elapsed() < WAIT, "no warning: {}", allowed.stderr());
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(allowed.terminate().code(), Some(0));
+}
+
+/// An MQTT client logged in as `user` with its own user name as client id,
+/// subscribed to its answers, or why it could not connect.
+async fn account(broker: &Mosquitto, user: &str, password: &str) -> Mqtt {
+    let mut m = Mqtt::login(broker, user, user, password)
+        .await
+        .unwrap_or_else(|e| panic!("{user} cannot connect: {e}"));
+    m.subscribe(&format!("lluav/+/res/{user}")).await;
+    m
+}
+
+#[tokio::test]
+async fn the_readme_broker_config_makes_each_account_one_identity() {
+    let broker = Mosquitto::recommended(&[("alice", "a-pw"), ("mallory", "m-pw"), ("drone-1", "d-pw")]);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let data = dir.path().join("v");
+    // The vehicle id and client id are its account's user name.
+    let options = vehicle_options(&data, &broker, Options::password(PASSWORD)).with_args(&[
+        "--uplink-user",
+        "drone-1",
+        "--uplink-password",
+        "d-pw",
+    ]);
+    let daemon = Lluavd::start(&data, &options);
+    // One account is one identity: a second connection of alice, whatever
+    // client id it asks for, pushes her first one off.
+    let first = account(&broker, "alice", "a-pw").await;
+    let mut alice = Mqtt::login(&broker, "alice-2", "alice", "a-pw")
+        .await
+        .expect("alice connects again");
+    assert!(first.closed_within(WAIT).await, "one connection per account");
+    alice.subscribe("lluav/+/res/alice").await;
     alice.subscribe("lluav/+/status").await;
     loop {
-        let (_, status) = alice.json().await;
-        if status["online"] == true {
+        let (t, status) = alice.json().await;
+        if t == "lluav/drone-1/status" && status["online"] == true {
             break;
         }
     }
-    alice.subscribe("lluav/+/res/alice").await;
     let syncs = |v: &Value| v["response"]["siyi"]["syncs"].clone();
-    assert_eq!(
-        alice
-            .request("drone-1", "alice", "0", &format!("login {PASSWORD}"))
-            .await["response"]["ret"],
-        0
-    );
-    // Alice may not speak as anyone else, nor forge the vehicle's status;
-    // Mallory, with no lines in the ACL, may do nothing at all.
-    let as_bob = r#"{"id":"x","frame":"siyi_sync"}"#;
-    alice
-        .publish("lluav/drone-1/req/bob", as_bob, QoS::AtLeastOnce, false)
+    let login = alice
+        .request("drone-1", "alice", "0", &format!("login {PASSWORD}"))
         .await;
-    let forged = r#"{"vehicle":"drone-1","online":false}"#;
-    alice
-        .publish("lluav/drone-1/status", forged, QoS::AtLeastOnce, true)
-        .await;
-    let mallory = Mqtt::with(login("mallory", "m-pw"))
-        .await
-        .expect("mallory connects");
-    mallory
-        .publish("lluav/drone-1/req/mallory", as_bob, QoS::AtLeastOnce, false)
-        .await;
+    assert_eq!(login["response"]["ret"], 0, "{login}");
     assert_eq!(
         syncs(&alice.request("drone-1", "alice", "1", "siyi_sync").await),
-        1,
+        1
+    );
+    // Mallory connects under the vehicle's client id, then under alice's:
+    // the broker gives each connection mallory's own, and nobody is pushed
+    // off.
+    let mut mallory = Vec::new();
+    for taken in ["drone-1", "alice"] {
+        let m = Mqtt::login(&broker, taken, "mallory", "m-pw")
+            .await
+            .expect("mallory connects");
+        mallory.push(m);
+    }
+    let mut mallory = mallory.pop().expect("a connection");
+    assert!(alice.is_open(), "alice was pushed off");
+    // Mallory may not speak as alice, read her answers or the vehicle's
+    // requests (logins carry the password), nor forge the vehicle's status.
+    let as_alice = r#"{"id":"x","frame":"siyi_sync"}"#;
+    mallory
+        .publish("lluav/drone-1/req/alice", as_alice, QoS::AtLeastOnce, false)
+        .await;
+    // Mosquitto grants these and delivers nothing the ACL does not allow.
+    for filter in ["lluav/+/res/alice", "lluav/drone-1/req/+", "lluav/+/res/mallory"] {
+        mallory.try_subscribe(filter).await;
+    }
+    let forged = r#"{"vehicle":"drone-1","online":false}"#;
+    mallory
+        .publish("lluav/drone-1/status", forged, QoS::AtLeastOnce, true)
+        .await;
+    let seen = alice
+        .request("drone-1", "alice", "2", &format!("login {PASSWORD}"))
+        .await;
+    assert_eq!(seen["response"]["ret"], 0);
+    // Mallory is an operator of her own: a session of her own, not logged
+    // in; her answer is the first thing she gets, after alice's request
+    // and answer went by.
+    let envelope = r#"{"id":"m1","frame":"siyi_sync"}"#;
+    mallory
+        .publish("lluav/drone-1/req/mallory", envelope, QoS::AtLeastOnce, false)
+        .await;
+    let first = mallory.next().await;
+    assert_eq!(topic(&first), "lluav/drone-1/res/mallory");
+    let r: Value = serde_json::from_slice(&first.payload).expect("JSON");
+    assert_eq!(r["response"]["msg"], "Login first!", "{r}");
+    assert_eq!(
+        syncs(&alice.request("drone-1", "alice", "3", "siyi_sync").await),
+        2,
         "nothing else ran"
     );
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let again = alice.request("drone-1", "alice", "2", "siyi_sync").await;
-    assert_eq!(syncs(&again), 2, "nor later");
-    let mut later = Mqtt::with(login("alice", "a-pw")).await.expect("alice again");
+    // The vehicle never left, and the retained status is its own.
+    let log = daemon.stderr();
+    assert_eq!(log.matches("uplink up").count(), 1, "{log}");
+    assert!(!log.contains("uplink down"), "{log}");
+    let mut later = account(&broker, "alice", "a-pw").await;
     later.subscribe("lluav/drone-1/status").await;
-    assert_eq!(
-        later.json().await.1["online"],
-        true,
-        "the retained status is the vehicle's"
+    assert_eq!(later.json().await.1["online"], true);
+    later.close().await;
+    // The command line: alice's client id is her user name by default.
+    let ca = test_ca().ca_file();
+    let ca = ca.to_str().expect("UTF-8 path");
+    let mut cli = Command::new(lluav_bin());
+    cli.args([
+        "--broker",
+        &broker.url,
+        "--broker-user",
+        "alice",
+        "--broker-cafile",
+        ca,
+        "--vehicle",
+        "drone-1",
+        "--password",
+        PASSWORD,
+        "siyi_sync",
+    ])
+    .env("LLUAV_BROKER_PASSWORD", "a-pw")
+    .env_remove("LLUAV_PASSWORD");
+    let out = cli.output().expect("lluav runs");
+    assert!(out.status.success(), "{}{}", text(&out.stdout), text(&out.stderr));
+    assert!(
+        text(&out.stdout).contains("\"syncs\": 3"),
+        "{}",
+        text(&out.stdout)
     );
+    let mut cli = Command::new(lluav_bin());
+    cli.args([
+        "--broker",
+        &broker.url,
+        "--broker-user",
+        "alice",
+        "--broker-cafile",
+        ca,
+        "--json",
+        "fleet",
+    ])
+    .env("LLUAV_BROKER_PASSWORD", "a-pw");
+    let out = cli.output().expect("lluav runs");
+    let fleet: Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(fleet["drone-1"]["online"], true, "{fleet}");
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+#[tokio::test]
+async fn no_message_retained_or_live_takes_the_vehicle_off_the_broker() {
+    let broker = Mosquitto::start();
+    let mut op = operator(&broker, "op").await;
+    let mut big = operator(&broker, "big").await;
+    // 200 KB retained on a request topic, before the vehicle subscribes.
+    let retained = format!(r#"{{"id":"r","frame":"state","pad":"{}"}}"#, "x".repeat(200_000));
+    big.publish("lluav/v1/req/big", retained, QoS::AtLeastOnce, true)
+        .await;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = vehicle(dir.path(), &broker, "v1", open_vehicle()).await;
+    let mut ws = Conn::connect(&daemon.url).await;
+    for n in 0..30 {
+        if n == 10 {
+            // 300 KB live: over the vehicle's Maximum Packet Size, so the
+            // broker drops it (and nobody answers it).
+            let live = format!(r#"{{"id":"l","frame":"state","pad":"{}"}}"#, "x".repeat(300_000));
+            big.publish("lluav/v1/req/big", live, QoS::AtLeastOnce, false)
+                .await;
+        }
+        let r = op.request("v1", "op", &format!("q{n}"), "state").await;
+        assert_eq!(r["response"]["ret"], 0, "{r}");
+    }
+    // Nothing for either big one came before the answer to a request sent
+    // after both.
+    let after = serde_json::json!({"id": "after", "frame": "state"}).to_string();
+    big.publish("lluav/v1/req/big", after, QoS::AtLeastOnce, false)
+        .await;
+    let (_, first) = big.json().await;
+    assert_eq!(first["id"], "after", "{first}");
+    assert_eq!(ws.request("state").await["state"]["uplink"], "up");
+    let log = daemon.stderr();
+    assert_eq!(log.matches("uplink up").count(), 1, "{log}");
+    assert!(!log.contains("uplink down"), "{log}");
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+#[tokio::test]
+async fn a_repeat_after_a_restart_gets_the_first_answer_and_never_runs_again() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let data = dir.path().join("v");
+    let options = || Options {
+        sim_speed: Some(10.0),
+        ..Options::password(PASSWORD)
+    };
+    let daemon = vehicle(&data, &broker, "v1", options()).await;
+    let mut op = operator(&broker, "op").await;
+    let login = op.request("v1", "op", "l1", &format!("login {PASSWORD}")).await;
+    assert_eq!(login["response"]["ret"], 0);
+    let takeoff = op.request("v1", "op", "t1", "takeoff").await;
+    assert_eq!(takeoff["response"]["ret"], 0, "{takeoff}");
+    let sync = op.request("v1", "op", "s1", "siyi_sync").await;
+    let state = op.request("v1", "op", "st1", "state").await;
+    assert_eq!(daemon.terminate().code(), Some(0));
+    // A request that was running when lluavd stopped, as the store keeps
+    // it (written and synced before the command runs, DESIGN "Uplink"): a
+    // file of a run that died before answering it.
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("after 1970")
+        .as_millis();
+    let cut = data.join("uplink").join(format!("answers-{now}.jsonl"));
+    std::fs::write(
+        &cut,
+        format!("{{\"t\":{now},\"c\":\"op\",\"i\":\"t2\",\"start\":18}}\n"),
+    )
+    .expect("written");
+    let daemon = vehicle(&data, &broker, "v1", options()).await;
+    // Sessions end with the run: log in again.
+    let login = op.request("v1", "op", "l2", &format!("login {PASSWORD}")).await;
+    assert_eq!(login["response"]["ret"], 0);
+    // The same ids: the first answers, byte for byte (their ts too).
+    assert_eq!(op.request("v1", "op", "t1", "takeoff").await, takeoff);
+    assert_eq!(op.request("v1", "op", "s1", "siyi_sync").await, sync);
+    let interrupted = op.request("v1", "op", "t2", "takeoff").await;
+    let r = &interrupted["response"];
+    assert_eq!(
+        (r["ret"].clone(), r["cmd"].clone(), r["msg"].clone()),
+        (
+            Value::from(-3),
+            Value::from(18),
+            "Interrupted by a restart; check state".into()
+        ),
+        "{interrupted}"
+    );
+    assert_eq!(op.request("v1", "op", "t2", "takeoff").await, interrupted);
+    // Neither ran again: the vehicle (a new simulator, on the ground) did
+    // not take off, and the camera counted no sync.
+    let mut ws = Conn::login(&daemon.url, PASSWORD).await;
+    assert_eq!(ws.request("state").await["state"]["fsm"], "disarmed");
+    let fresh = op.request("v1", "op", "s2", "siyi_sync").await;
+    assert_eq!(fresh["response"]["siyi"]["syncs"], 1, "{fresh}");
+    // A request that changes nothing is not kept: it runs again.
+    let again = op.request("v1", "op", "st1", "state").await;
+    assert_ne!(again["response"]["ts"], state["response"]["ts"]);
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+#[tokio::test]
+async fn a_vehicle_killed_in_a_burst_runs_each_request_once_across_the_restart() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let data = dir.path().join("v");
+    let daemon = vehicle(&data, &broker, "v1", open_vehicle()).await;
+    let mut op = operator(&broker, "op").await;
+    const N: usize = 30;
+    for n in 0..N {
+        let envelope = serde_json::json!({"id": format!("k{n}"), "frame": "siyi_sync"}).to_string();
+        op.publish("lluav/v1/req/op", envelope, QoS::AtLeastOnce, false)
+            .await;
+    }
+    // Killed (no clean stop) once the first answers are out.
+    let mut seen = HashMap::new();
+    while seen.len() < 3 {
+        let (_, v) = op.json().await;
+        seen.insert(v["id"].as_str().expect("id").to_owned(), v);
+    }
+    daemon.signal("KILL");
+    let _ = daemon.wait();
+    let daemon = vehicle(&data, &broker, "v1", open_vehicle()).await;
+    // Answers still on their way from the first run come first; the
+    // repeats' answers are the ones after.
+    let mut syncs = Vec::new();
+    for n in 0..N {
+        let id = format!("k{n}");
+        let answer = op.request("v1", "op", &id, "siyi_sync").await;
+        if let Some(first) = seen.get(&id) {
+            assert_eq!(&answer, first, "{id}: the answer given before the kill");
+        }
+        let r = &answer["response"];
+        let run = match (r["ret"].as_i64(), r["siyi"]["syncs"].as_u64()) {
+            (Some(0), Some(count)) => count,
+            (Some(-3), _) => 0,
+            _ => panic!("{answer}"),
+        };
+        syncs.push(run);
+    }
+    // The first run's answers (its counter from 1), at most the one that
+    // was running when it died (-3), then the second run's (from 1): each
+    // id ran once, in order, in one of the two runs.
+    let counted_from_one = |run: &[u64]| run.iter().enumerate().all(|(i, c)| *c == i as u64 + 1);
+    let first_run = syncs
+        .iter()
+        .enumerate()
+        .take_while(|(i, c)| **c == *i as u64 + 1)
+        .count();
+    let rest = &syncs[first_run..];
+    let second_run = rest.strip_prefix(&[0]).unwrap_or(rest);
+    assert!(counted_from_one(second_run), "{syncs:?}");
+    assert!(first_run >= 3, "{syncs:?}");
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+#[tokio::test]
+async fn a_client_that_lost_its_session_to_a_crowd_still_gets_its_answer_and_nothing_reruns() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = vehicle(dir.path(), &broker, "v1", open_vehicle()).await;
+    let mut victim = operator(&broker, "victim").await;
+    let first = victim.request("v1", "victim", "e1", "siyi_sync").await;
+    assert_eq!(first["response"]["siyi"]["syncs"], 1);
+    // 1,100 other client ids: more than the 1,024 sessions, so the
+    // victim's session (idle, not logged in) gives up its seat.
+    let mut crowd = Mqtt::connect(&broker, "crowd").await;
+    crowd.subscribe("lluav/v1/res/+").await;
+    const CROWD: usize = 1100;
+    for n in 0..CROWD {
+        let envelope = serde_json::json!({"id": "c", "frame": "state"}).to_string();
+        crowd
+            .publish(&format!("lluav/v1/req/c{n}"), envelope, QoS::AtLeastOnce, false)
+            .await;
+    }
+    let mut answered = HashSet::new();
+    while answered.len() < CROWD {
+        let p = crowd.next().await;
+        let v: Value = serde_json::from_slice(&p.payload).expect("JSON");
+        assert_eq!(v["response"]["ret"], 0, "{v}");
+        answered.insert(topic(&p));
+    }
+    assert_eq!(victim.request("v1", "victim", "e1", "siyi_sync").await, first);
+    let next = victim.request("v1", "victim", "e2", "siyi_sync").await;
+    assert_eq!(next["response"]["siyi"]["syncs"], 2, "e1 ran once: {next}");
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+/// The next event on a `/events` subscriber, battery and log events
+/// left out (they come whenever they come); within [`WAIT`] (the
+/// stream's pings keep the connection itself from waiting that long).
+async fn flight_event(sub: &mut Conn) -> Value {
+    let next = async {
+        loop {
+            let e = match sub.recv().await {
+                lluav_tests::Received::Text(t) => {
+                    serde_json::from_str::<Value>(&t).expect("an event is JSON")
+                }
+                other => panic!("expected an event, got {other:?}"),
+            };
+            if !matches!(e["event"].as_str(), Some("battery" | "log")) {
+                return e;
+            }
+        }
+    };
+    tokio::time::timeout(WAIT, next).await.expect("an event in time")
+}
+
+#[tokio::test]
+async fn what_an_uplink_request_did_is_told_on_the_events_stream_once_answered() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = vehicle(dir.path(), &broker, "v1", Options::password(PASSWORD)).await;
+    let mut sub = Conn::connect(&format!("{}/events", daemon.url)).await;
+    assert_eq!(sub.request(&format!("login {PASSWORD}")).await["ret"], 0);
+    let mut op = operator(&broker, "op").await;
+    let login = op.request("v1", "op", "1", &format!("login {PASSWORD}")).await;
+    assert_eq!(login["response"]["ret"], 0, "{login}");
+    let takeoff = op.request("v1", "op", "2", "takeoff").await;
+    assert_eq!(takeoff["response"]["ret"], 0, "{takeoff}");
+    let control = op.request("v1", "op", "3", "control").await;
+    let pilot = control["response"]["control"]["by"].clone();
+    assert!(pilot.is_string(), "{control}");
+    // The uplink session stays open (idle sessions end after minutes):
+    // the takeoff's events are held only until its answer is published,
+    // not until the session ends.
+    let control_event = flight_event(&mut sub).await;
+    assert_eq!(control_event["event"], "control", "{control_event}");
+    assert_eq!(control_event["by"], pilot, "{control_event}");
+    let fsm = flight_event(&mut sub).await;
+    assert_eq!(
+        (&fsm["event"], &fsm["from"], &fsm["to"]),
+        (&"fsm".into(), &"disarmed".into(), &"takeoff".into()),
+        "{fsm}"
+    );
+    let armed = flight_event(&mut sub).await;
+    assert_eq!(
+        (&armed["event"], &armed["armed"]),
+        (&"armed".into(), &true.into()),
+        "{armed}"
+    );
+    // Events after them (a WebSocket session taking over) follow.
+    let mut ws = Conn::login(&daemon.url, PASSWORD).await;
+    assert_eq!(ws.request("control_take").await["ret"], 0);
+    let taken = loop {
+        let e = flight_event(&mut sub).await;
+        if e["event"] != "fsm" {
+            break e;
+        }
+        // The vehicle may reach its hover meanwhile.
+        assert_eq!(
+            (&e["from"], &e["to"]),
+            (&"takeoff".into(), &"hover".into()),
+            "{e}"
+        );
+    };
+    assert_eq!(
+        (&taken["event"], &taken["from"]),
+        (&"control".into(), &pilot),
+        "{taken}"
+    );
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+#[tokio::test]
+async fn the_fleet_listing_escapes_what_a_vehicle_wrote() {
+    let broker = Mosquitto::start();
+    let forger = Mqtt::connect(&broker, "forger").await;
+    let status = r#"{"vehicle":"evil","online":true}"#;
+    forger
+        .publish("lluav/evil/status", status, QoS::AtLeastOnce, true)
+        .await;
+    // Clear the screen, set the window title, a C1 control sequence
+    // introducer and a right-to-left override, in a retained state.
+    let fsm = "\u{1b}[2J\u{1b}]0;pwned\u{7}\u{9b}31m\u{202e}dlrow";
+    let state = serde_json::json!({"ret": 0, "cmd": 2, "ts": 1, "state": {"fsm": fsm, "armed": "\u{1b}[1A"}});
+    forger
+        .publish("lluav/evil/state", state.to_string(), QoS::AtMostOnce, true)
+        .await;
+    for args in [&["fleet"][..], &["--json", "fleet"]] {
+        let out = lluav(&[&["--broker", &broker.url][..], args].concat(), "");
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let stdout = text(&out.stdout);
+        assert!(stdout.contains("evil"), "{stdout}");
+        for raw in ['\u{1b}', '\u{7}', '\u{9b}', '\u{202e}'] {
+            assert!(!stdout.contains(raw), "{args:?} printed {raw:?} raw: {stdout:?}");
+        }
+        assert!(
+            stdout.contains(r"\u001b[2J") && stdout.contains(r"\u202e"),
+            "{stdout}"
+        );
+        if args[0] == "--json" {
+            let fleet: Value = serde_json::from_str(&stdout).expect("still JSON");
+            assert_eq!(fleet["evil"]["state"]["state"]["fsm"], fsm, "the same value");
+        }
+    }
+}
+
+/// The resident memory (`VmRSS`) and its peak (`VmHWM`) of process `pid`,
+/// in KiB.
+fn memory_kib(pid: u32) -> (u64, u64) {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    let field = |name: &str| {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(name))
+            .and_then(|v| v.trim().strip_suffix("kB"))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(0)
+    };
+    (field("VmRSS:"), field("VmHWM:"))
+}
+
+/// The uplink's documented memory bound (DESIGN.md, "Uplink").
+const UPLINK_BOUND_KIB: u64 = 32 << 10;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_broker_that_floods_and_never_reads_cannot_grow_lluavd_or_stop_its_websocket() {
+    const FLOOD: u64 = 256 << 20;
+    let flooder = Flooder::start(
+        "v1",
+        Flood {
+            bytes: FLOOD,
+            // 64 Ki requests: enough to fill the id store, the sessions
+            // and the bytes in flight.
+            message: 4 << 10,
+            clients: 16 << 10,
+        },
+    );
+    let dir = tempfile::tempdir().expect("temp dir");
+    let options =
+        with_admin(dir.path(), open_vehicle()).with_args(&["--uplink", &flooder.url(), "--vehicle-id", "v1"]);
+    let daemon = Lluavd::start(dir.path(), &options);
+    flooder.wait_subscribed();
+    let mut ws = Conn::connect(&daemon.url).await;
+    assert_eq!(ws.request("state").await["ret"], 0);
+    let (before, _) = memory_kib(daemon.pid());
+    flooder.go();
+    // The WebSocket side answers all along; the flood ends when all of it
+    // went in, or when lluavd gave up on a broker that never answers its
+    // pings (after two keep-alives).
+    let mut answered = 0;
+    while !flooder.ended() {
+        let r = tokio::time::timeout(WAIT, ws.request("state"))
+            .await
+            .expect("the WebSocket side answered in time");
+        assert_eq!(r["ret"], 0, "{r}");
+        answered += 1;
+    }
+    let (after, peak) = memory_kib(daemon.pid());
+    let sent = flooder.sent();
+    eprintln!(
+        "flood: {} MiB in; lluavd VmRSS {before} KiB before, {after} KiB after, peak {peak} KiB; \
+         {answered} WebSocket round trips meanwhile",
+        sent >> 20
+    );
+    assert!(
+        sent >= 2 * (UPLINK_BOUND_KIB << 10),
+        "only {sent} bytes went in:\n{}",
+        daemon.stderr()
+    );
+    assert!(
+        peak.saturating_sub(before) <= UPLINK_BOUND_KIB,
+        "VmRSS {before} KiB before, {after} KiB after, peak {peak} KiB, with {sent} bytes flooded"
+    );
+    assert!(answered > 0);
+    assert_eq!(ws.request("state").await["ret"], 0);
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+/// One pilot across the transports (DESIGN.md, "Flight authority"): a
+/// WebSocket session flying keeps an operator through the broker from
+/// steering, and the operator's landing runs and hands it control.
+#[tokio::test]
+async fn one_session_flies_across_websocket_and_the_uplink() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let options = Options {
+        sim_speed: Some(10.0),
+        ..Options::password(PASSWORD)
+    };
+    let daemon = vehicle(dir.path(), &broker, "v1", options).await;
+    let mut ws = Conn::login(&daemon.url, PASSWORD).await;
+    let mut op = operator(&broker, "op").await;
+    let login = op.request("v1", "op", "1", &format!("login {PASSWORD}")).await;
+    assert_eq!(login["response"]["ret"], 0, "{login}");
+
+    assert_eq!(ws.request("takeoff").await["ret"], 0);
+    lluav_tests::wait_for_state(&mut ws, "hovering", |s| s["fsm"] == "hover").await;
+    assert_eq!(ws.request("set_sp_ned 1:0:-2:0").await["ret"], 0);
+    let mine = ws.request("control").await["control"].clone();
+    assert_eq!(mine["you"], true, "{mine}");
+    let ws_label = mine["by"].as_str().expect("a label").to_owned();
+    assert!(ws_label.starts_with("ws 127.0.0.1:"), "{ws_label}");
+
+    // The operator is refused motion and told who flies and how to take over.
+    let refused = op.request("v1", "op", "2", "set_sp_ned 2:0:-2:0").await["response"].clone();
+    assert_eq!(refused["ret"], -1, "{refused}");
+    let why = refused["msg"].as_str().unwrap_or_default();
+    assert!(
+        why.starts_with(&format!("Vehicle is flown by {ws_label} since ")),
+        "{refused}"
+    );
+    assert!(why.ends_with(": control_take to take over"), "{refused}");
+    let seen = op.request("v1", "op", "3", "control").await["response"].clone();
+    assert_eq!(
+        (&seen["control"]["by"], &seen["control"]["you"]),
+        (&ws_label.as_str().into(), &false.into()),
+        "{seen}"
+    );
+
+    // A landing is never refused by the control gate; it hands control over.
+    let land = op.request("v1", "op", "4", "land").await["response"].clone();
+    assert_eq!(land["ret"], 0, "{land}");
+    let now = ws.request("control").await["control"].clone();
+    assert_eq!(
+        (&now["by"], &now["you"]),
+        (&"mqtt op".into(), &false.into()),
+        "{now}"
+    );
+    let held = ws.request("set_sp_ned 1:0:-2:0").await;
+    assert!(
+        held["msg"]
+            .as_str()
+            .is_some_and(|m| m.starts_with("Vehicle is flown by mqtt op since ")),
+        "{held}"
+    );
+
+    // Released through the broker, control is free for the WebSocket session.
+    let released = op.request("v1", "op", "5", "control_release").await["response"].clone();
+    assert_eq!(
+        (&released["ret"], &released["control"]),
+        (&0.into(), &Value::Null),
+        "{released}"
+    );
+    assert_eq!(ws.request("control").await["control"], Value::Null);
     assert_eq!(daemon.terminate().code(), Some(0));
 }

@@ -49,7 +49,7 @@ impl Baseline {
                     grammar: s.grammar,
                     usage: s.usage.to_string(),
                 };
-                (s.name.to_string(), info)
+                (s.name().to_string(), info)
             })
             .collect();
         Baseline {
@@ -82,13 +82,13 @@ impl Baseline {
                 ),
             );
         };
-        if info.flags.admin_only && !session.admin {
+        if info.flags.admin_only() && !session.admin {
             return error(-1, cmd, ts, "Admin only!".into());
         }
-        if !info.flags.run_on_arm && self.armed {
+        if !info.flags.run_on_arm() && self.armed {
             return error(-1, cmd, ts, "Not allow when vehicle is ARMED!".into());
         }
-        if !info.flags.run_in_lock && self.lock && !session.admin {
+        if !info.flags.run_in_lock() && self.lock && !session.admin {
             return error(-1, cmd, ts, "CMD not permitted to run in LOCK mode!".into());
         }
         let invalid = || error(-2, cmd, ts, format!("Invalid arguments, usage: {}", info.usage));

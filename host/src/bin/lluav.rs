@@ -18,6 +18,7 @@ use std::time::Duration;
 use clap::Parser;
 use lluav_core::{Grammar, TABLE};
 use lluav_host::client::{Client, ClientError, ConnectOptions, DEFAULT_URL, Response};
+use lluav_host::terminal::{escape, escape_lines};
 use lluav_host::uplink::fleet::{self, Fleet, FleetError, FleetOptions};
 use rustyline::completion::{Completer, Pair};
 use rustyline::error::ReadlineError;
@@ -60,7 +61,8 @@ struct Cli {
     #[arg(long, env = "LLUAV_BROKER_CAFILE", value_name = "FILE")]
     broker_cafile: Option<PathBuf>,
     /// With --broker: this operator's client id (1-64 of [A-Za-z0-9_-]);
-    /// each client id is one session on each vehicle. [default: lluav-USER-RANDOM]
+    /// each client id is one session on each vehicle. [default: the broker
+    /// user name, else lluav-RANDOM]
     #[arg(long, value_name = "ID", requires = "broker")]
     client_id: Option<String>,
     /// With --broker: seconds to wait for each vehicle's answer.
@@ -119,7 +121,7 @@ fn through_broker(runtime: &Runtime, mut cli: Cli) -> ExitCode {
         (_, true) => match lluav_core::parse(&line) {
             Ok(_) => runtime.block_on(on_vehicles(&cli, &line)),
             Err(e) => {
-                eprintln!("lluav: {e}");
+                eprintln!("lluav: {}", escape(&e.to_string()));
                 ExitCode::from(2)
             }
         },
@@ -147,7 +149,7 @@ async fn list_fleet(cli: &Cli) -> ExitCode {
     let fleet = match fleet(cli).await {
         Ok(f) => f,
         Err(e) => {
-            eprintln!("lluav: {e}");
+            eprintln!("lluav: {}", escape(&e.to_string()));
             return ExitCode::FAILURE;
         }
     };
@@ -155,7 +157,7 @@ async fn list_fleet(cli: &Cli) -> ExitCode {
     if cli.json {
         let object: serde_json::Map<String, serde_json::Value> =
             vehicles.iter().map(|v| (v.id.clone(), v.to_json())).collect();
-        println!("{}", serde_json::Value::Object(object));
+        println!("{}", escape(&serde_json::Value::Object(object).to_string()));
     } else {
         print!("{}", fleet::table(&vehicles));
     }
@@ -183,7 +185,7 @@ async fn on_vehicles(cli: &Cli, line: &str) -> ExitCode {
     let fleet = match fleet(cli).await {
         Ok(f) => f,
         Err(e) => {
-            eprintln!("lluav: {e}");
+            eprintln!("lluav: {}", escape(&e.to_string()));
             return ExitCode::FAILURE;
         }
     };
@@ -197,11 +199,11 @@ async fn on_vehicles(cli: &Cli, line: &str) -> ExitCode {
                 failed |= response.ret < 0;
             }
             Ok(response) => {
-                println!("{vehicle}: {}", response.to_json());
+                println!("{vehicle}: {}", escape(&response.to_json().to_string()));
                 failed |= response.ret < 0;
             }
             Err(e) => {
-                eprintln!("{vehicle}: lluav: {e}");
+                eprintln!("{vehicle}: lluav: {}", escape(&e.to_string()));
                 failed = true;
             }
         }
@@ -217,7 +219,7 @@ async fn on_vehicles(cli: &Cli, line: &str) -> ExitCode {
 fn one_shot(runtime: &Runtime, cli: &Cli, line: &str) -> ExitCode {
     // Catch a malformed request here, with its usage line, before dialling.
     if let Err(e) = lluav_core::parse(line) {
-        eprintln!("lluav: {e}");
+        eprintln!("lluav: {}", escape(&e.to_string()));
         return ExitCode::from(2);
     }
     let answered = runtime.block_on(async {
@@ -232,7 +234,7 @@ fn one_shot(runtime: &Runtime, cli: &Cli, line: &str) -> ExitCode {
             print_response(&response);
             if response.ret < 0 {
                 if let Some(msg) = response.msg() {
-                    eprintln!("lluav: {line}: {msg} (ret {})", response.ret);
+                    eprintln!("lluav: {line}: {} (ret {})", escape(msg), response.ret);
                 }
                 ExitCode::FAILURE
             } else {
@@ -240,7 +242,7 @@ fn one_shot(runtime: &Runtime, cli: &Cli, line: &str) -> ExitCode {
             }
         }
         Err(e) => {
-            eprintln!("lluav: {e}");
+            eprintln!("lluav: {}", escape(&e.to_string()));
             ExitCode::FAILURE
         }
     }
@@ -281,9 +283,12 @@ fn with_hint(e: ClientError) -> ClientError {
     }
 }
 
+/// Prints a response as pretty JSON, escaped for the terminal (a vehicle
+/// could send control characters serde_json writes as they are: DEL, C1,
+/// format characters).
 fn print_response(response: &Response) {
     match serde_json::to_string_pretty(&response.to_json()) {
-        Ok(text) => println!("{text}"),
+        Ok(text) => println!("{}", escape_lines(&text)),
         Err(e) => eprintln!("lluav: cannot print the response: {e}"),
     }
 }
@@ -396,9 +401,9 @@ fn send_line(runtime: &Runtime, cli: &Cli, link: &mut Option<Link>, line: &str) 
     match reply {
         Ok(response) => print_response(&response),
         Err(Failed::Parse(e)) => eprintln!("{e}"),
-        Err(Failed::Vehicle(e)) => eprintln!("lluav: {e}"),
+        Err(Failed::Vehicle(e)) => eprintln!("lluav: {}", escape(&e)),
         Err(Failed::Link(e)) => {
-            eprintln!("lluav: {e}; the next command reconnects");
+            eprintln!("lluav: {}; the next command reconnects", escape(&e));
             *link = None;
         }
     }
@@ -416,7 +421,7 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
     let mut link = match runtime.block_on(Link::open(cli)) {
         Ok(l) => Some(l),
         Err(e) => {
-            eprintln!("lluav: {e}");
+            eprintln!("lluav: {}", escape(&e.to_string()));
             return ExitCode::FAILURE;
         }
     };
@@ -433,7 +438,7 @@ fn repl(runtime: &Runtime, cli: &Cli) -> ExitCode {
             Err(ReadlineError::Interrupted) => continue,
             Err(ReadlineError::Eof) => break,
             Err(e) => {
-                eprintln!("lluav: {e}");
+                eprintln!("lluav: {}", escape(&e.to_string()));
                 break;
             }
         };
@@ -483,13 +488,13 @@ fn print_command(name: &str) {
         Some(spec) => {
             println!("{}\n  {}", spec.usage, spec.summary());
             let mut notes = Vec::new();
-            if !spec.flags.run_on_arm {
+            if !spec.flags.run_on_arm() {
                 notes.push("refused while armed");
             }
-            if !spec.flags.run_in_lock {
+            if !spec.flags.run_in_lock() {
                 notes.push("refused in lock mode unless admin");
             }
-            if spec.flags.admin_only {
+            if spec.flags.admin_only() {
                 notes.push("admin only");
             }
             match spec.class {
@@ -530,10 +535,10 @@ impl Completer for Commands {
         };
         let matches = TABLE
             .iter()
-            .filter(|s| s.name.starts_with(word))
+            .filter(|s| s.name().starts_with(word))
             .map(|s| Pair {
                 display: s.usage.to_owned(),
-                replacement: format!("{} ", s.name),
+                replacement: format!("{} ", s.name()),
             })
             .collect();
         Ok((start, matches))

@@ -146,16 +146,17 @@ async fn serve<V: Vehicle>(
     }
 }
 
-/// The admin login value `1025` is in the public spec: beyond loopback,
-/// anyone who can reach the port could use it (lluavd starts so only with
-/// `--allow-default-admin`).
+/// The admin login value `1025` is in the public spec: beyond loopback or
+/// through the broker, anyone who can reach the vehicle could use it
+/// (lluavd starts so only with `--allow-default-admin`).
 fn warn_about_public_admin_value(settings: &Settings) {
     let public = settings.admin_password == lluav_core::session::DEFAULT_ADMIN_PASSWORD;
-    if public && !settings.echo && !settings.bind.ip().is_loopback() {
+    let reachable = !settings.bind.ip().is_loopback() || settings.uplink.is_some();
+    if public && !settings.echo && reachable {
         warn!(
             bind = %settings.bind,
             "the admin login value is the protocol's public default (1025) and this daemon is reachable \
-             beyond loopback: anyone who can connect can log in as admin. Set `admin_password = \"...\"` \
+             beyond loopback or through the broker: anyone who can connect can log in as admin. Set `admin_password = \"...\"` \
              in the config file (--config FILE) to change it"
         );
     }

@@ -1,11 +1,13 @@
 //! The MQTT connection options both ends use: the vehicle's uplink and the
-//! operator's fleet client (rumqttc, MQTT 3.1.1, clean session, rustls).
+//! operator's fleet client (rumqttc's MQTT 5 client, clean start, no
+//! session expiry, rustls).
 
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
-use rumqttc::{EventLoop, MqttOptions, NetworkOptions, TlsConfiguration, Transport};
+use rumqttc::v5::MqttOptions;
+use rumqttc::{NetworkOptions, TlsConfiguration, Transport};
 
 use super::config::BrokerUrl;
 use crate::client::{ClientError, tls_config};
@@ -23,18 +25,21 @@ pub struct Dial<'a> {
     pub broker: &'a BrokerUrl,
     /// The MQTT client id.
     pub client_id: &'a str,
-    /// User name and password at the broker.
+    /// User name at the broker.
     pub user: Option<&'a str>,
     /// The password at the broker.
     pub password: Option<&'a str>,
     /// CA certificates for `mqtts://` instead of the system's.
     pub cafile: Option<&'a Path>,
-    /// Largest packet read, and written, in bytes.
-    pub max_packet: (usize, usize),
+    /// The largest packet this end takes, sent as the CONNECT's Maximum
+    /// Packet Size: the broker drops anything larger instead of sending it
+    /// (MQTT 5, 3.1.2.11), so no message can cost the connection.
+    pub max_packet: u32,
     /// Requests the client may queue for the connection.
     pub queue: usize,
-    /// Acknowledge QoS 1 messages only when told to.
-    pub manual_acks: bool,
+    /// QoS 1 messages sent and not yet acknowledged, at most (the broker's
+    /// Receive Maximum may make it fewer): each one waits in memory.
+    pub in_flight: u16,
 }
 
 impl Dial<'_> {
@@ -44,11 +49,25 @@ impl Dial<'_> {
         options
             .set_keep_alive(KEEP_ALIVE)
             // Nothing sent while this end was away is delivered late, and
-            // nothing this end queued is sent after a reconnect.
-            .set_clean_session(true)
-            .set_max_packet_size(self.max_packet.0, self.max_packet.1)
+            // nothing this end queued is sent after a reconnect: a clean
+            // start, and a session that ends with the connection.
+            .set_clean_start(true)
+            .set_session_expiry_interval(None)
+            .set_max_packet_size(Some(self.max_packet))
             .set_request_channel_capacity(self.queue)
-            .set_manual_acks(self.manual_acks);
+            .set_outgoing_inflight_upper_limit(self.in_flight)
+            .set_connection_timeout(CONNECT_TIMEOUT_S)
+            // Acknowledged as read: the broker redelivers nothing within a
+            // connection, and a clean start forgets what was not
+            // acknowledged, so waiting would only make the acknowledgements
+            // queue up (a broker that floods and never reads).
+            .set_manual_acks(false);
+        let mut network = NetworkOptions::new();
+        // Small messages go out at once: Nagle's delay would add tens of
+        // milliseconds to every round trip.
+        network.set_tcp_nodelay(true);
+        network.set_connection_timeout(CONNECT_TIMEOUT_S);
+        options.set_network_options(network);
         if let Some(user) = self.user {
             options.set_credentials(user, self.password.unwrap_or_default());
         }
@@ -60,13 +79,4 @@ impl Dial<'_> {
         }
         Ok(options)
     }
-}
-
-/// Sets the connection's socket options: no Nagle delay on small
-/// messages, a bounded connect.
-pub fn tune(events: &mut EventLoop) {
-    let mut network = NetworkOptions::new();
-    network.set_tcp_nodelay(true);
-    network.set_connection_timeout(CONNECT_TIMEOUT_S);
-    events.set_network_options(network);
 }

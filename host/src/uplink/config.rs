@@ -100,7 +100,9 @@ pub struct UplinkCli {
     /// certificates to trust instead of the system's.
     #[arg(long, value_name = "FILE")]
     pub uplink_cafile: Option<PathBuf>,
-    /// This vehicle's id in topics: 1-64 of [A-Za-z0-9_-]. [default: the host name]
+    /// This vehicle's id in topics: 1-64 of [A-Za-z0-9_-]; with
+    /// --uplink-user it is that user name. [default: the broker user name,
+    /// else the host name]
     #[arg(long, value_name = "ID")]
     pub vehicle_id: Option<String>,
     /// How often the state is published to the broker; 0: only when fsm,
@@ -158,10 +160,24 @@ impl Settings {
         if cafile.is_some() && !broker.tls {
             return Err("--uplink-cafile is for mqtts:// brokers");
         }
-        let vehicle_id = match cli.vehicle_id.or(file.vehicle_id) {
-            Some(id) if valid_name(&id) => id,
-            Some(_) => return Err("--vehicle-id must be 1-64 of [A-Za-z0-9_-]"),
-            None => default_vehicle_id(),
+        let user = cli.uplink_user.or(file.uplink_user);
+        // The broker account is the identity: its user name is the
+        // vehicle's id in topics and its client id, so that the ACL block
+        // of that account is the vehicle's.
+        let vehicle_id = match (cli.vehicle_id.or(file.vehicle_id), &user) {
+            (Some(id), _) if !valid_name(&id) => return Err("--vehicle-id must be 1-64 of [A-Za-z0-9_-]"),
+            (Some(id), Some(user)) if id != *user => {
+                return Err("--vehicle-id must be the broker user name (--uplink-user) when one is given");
+            }
+            (Some(id), _) => id,
+            (None, Some(user)) if valid_name(user) => user.clone(),
+            (None, Some(_)) => {
+                return Err(
+                    "the vehicle id is the broker user name (--uplink-user), which must then be 1-64 of \
+                     [A-Za-z0-9_-]",
+                );
+            }
+            (None, None) => default_vehicle_id(),
         };
         let state_hz = cli.uplink_state_hz.or(file.uplink_state_hz).unwrap_or(1.0);
         if !(0.0..=MAX_STATE_HZ).contains(&state_hz) {
@@ -169,12 +185,22 @@ impl Settings {
         }
         Ok(Some(Settings {
             broker,
-            user: cli.uplink_user.or(file.uplink_user),
+            user,
             password: cli.uplink_password.or(file.uplink_password),
             cafile,
             vehicle_id,
             state_hz,
         }))
+    }
+}
+
+impl Settings {
+    /// The vehicle's MQTT client id: its broker user name (the broker may
+    /// force it to be: `use_username_as_clientid`), or `lluavd-<V>`.
+    pub fn client_id(&self) -> String {
+        self.user
+            .clone()
+            .unwrap_or_else(|| format!("lluavd-{}", self.vehicle_id))
     }
 }
 
@@ -263,5 +289,35 @@ mod tests {
         assert!(valid_name(
             &default.expect("valid").expect("configured").vehicle_id
         ));
+    }
+
+    #[test]
+    fn the_broker_user_name_is_the_vehicle_id_and_its_client_id() {
+        let resolve = |user: Option<&str>, id: Option<&str>| {
+            let cli = UplinkCli {
+                uplink: Some("mqtt://h".into()),
+                uplink_user: user.map(str::to_owned),
+                vehicle_id: id.map(str::to_owned),
+                ..UplinkCli::default()
+            };
+            Settings::resolve(cli, UplinkKeys::default())
+                .map(|s| s.map(|s| (s.vehicle_id.clone(), s.client_id())))
+        };
+        assert_eq!(
+            resolve(Some("drone-1"), None),
+            Ok(Some(("drone-1".into(), "drone-1".into())))
+        );
+        assert_eq!(
+            resolve(Some("drone-1"), Some("drone-1")),
+            Ok(Some(("drone-1".into(), "drone-1".into())))
+        );
+        assert_eq!(
+            resolve(None, Some("v7")),
+            Ok(Some(("v7".into(), "lluavd-v7".into())))
+        );
+        let other = resolve(Some("drone-1"), Some("drone-2")).expect_err("another account's id");
+        assert!(other.contains("--uplink-user"), "{other}");
+        let invalid = resolve(Some("drone.1"), None).expect_err("not an id");
+        assert!(invalid.contains("[A-Za-z0-9_-]"), "{invalid}");
     }
 }

@@ -8,6 +8,7 @@ use std::fmt;
 use lluav_core::Ret;
 use serde_json::{Map, Value};
 
+use super::json::{self, Duplicate};
 use super::topic::MAX_NAME;
 
 /// Longest request id, in characters.
@@ -23,7 +24,7 @@ pub struct Request {
 }
 
 /// Why an envelope cannot be read.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Unreadable {
     /// The payload is over `--max-message` bytes.
     TooLarge(usize),
@@ -31,6 +32,8 @@ pub enum Unreadable {
     NotJson,
     /// JSON, but not an object.
     NotObject,
+    /// A member named twice, in the envelope or anywhere inside it.
+    Duplicate(Duplicate),
     /// `id` is missing, not a string, or not 1-64 characters.
     Id,
     /// `frame` is missing or not a string.
@@ -43,6 +46,7 @@ impl fmt::Display for Unreadable {
             Unreadable::TooLarge(max) => write!(f, "larger than {max} bytes"),
             Unreadable::NotJson => f.write_str("not JSON"),
             Unreadable::NotObject => f.write_str("not a JSON object"),
+            Unreadable::Duplicate(d) => d.fmt(f),
             Unreadable::Id => write!(f, "\"id\" must be a string of 1-{MAX_ID_CHARS} characters"),
             Unreadable::Frame => f.write_str("\"frame\" must be a string"),
         }
@@ -66,9 +70,14 @@ pub fn valid_id(id: &str) -> bool {
 
 /// Reads a request envelope of at most `max` bytes.
 pub fn read(payload: &[u8], max: usize) -> Result<Request, Refused> {
-    let value: Option<Value> = serde_json::from_slice(payload).ok();
+    let (value, duplicate) = match json::read(payload) {
+        Ok((value, duplicate)) => (Some(value), duplicate),
+        Err(_) => (None, None),
+    };
     let object = value.as_ref().and_then(Value::as_object);
-    let id = object.and_then(id_of);
+    // An id named twice is no id: which one would the answer carry?
+    let id_twice = duplicate.as_ref().is_some_and(|d| d.top && d.name == "id");
+    let id = object.and_then(id_of).filter(|_| !id_twice);
     let refuse = |why| Refused { id: id.clone(), why };
     if payload.len() > max {
         return Err(refuse(Unreadable::TooLarge(max)));
@@ -78,6 +87,9 @@ pub fn read(payload: &[u8], max: usize) -> Result<Request, Refused> {
         Some(Value::Object(ref o)) => o,
         Some(_) => return Err(refuse(Unreadable::NotObject)),
     };
+    if let Some(duplicate) = duplicate {
+        return Err(refuse(Unreadable::Duplicate(duplicate)));
+    }
     let Some(id) = id.clone() else {
         return Err(refuse(Unreadable::Id));
     };
@@ -166,6 +178,28 @@ mod tests {
         );
         let big = format!(r#"{{"id":"b","frame":"{}"}}"#, "x".repeat(200));
         assert_eq!(why(&big), (Some("b".into()), Unreadable::TooLarge(100)));
+    }
+
+    #[test]
+    fn a_member_named_twice_is_refused_and_the_id_kept_unless_it_is_the_twice_named_one() {
+        let (id, refused) = why(r#"{"id":"d1","frame":"ver","frame":"login 1025"}"#);
+        assert_eq!(id.as_deref(), Some("d1"));
+        assert_eq!(refused.to_string(), r#"duplicate member "frame""#);
+        let r = refused_answer(r#"{"id":"d1","frame":"ver","frame":"login 1025"}"#);
+        assert_eq!(
+            r,
+            r#"{"id":"d1","response":{"ret":-2,"cmd":0,"ts":5,"msg":"Invalid request envelope: duplicate member \"frame\""}}"#
+        );
+        assert_eq!(why(r#"{"id":"a","id":"b","frame":"state"}"#).0, None);
+        let (id, refused) = why(r#"{"id":"n","frame":"state","x":{"k":1,"k":2}}"#);
+        assert_eq!(
+            (id.as_deref(), refused.to_string().as_str()),
+            (Some("n"), r#"duplicate member "k""#)
+        );
+    }
+
+    fn refused_answer(payload: &str) -> String {
+        refused(&read(payload.as_bytes(), 100).expect_err("refused"), 5)
     }
 
     #[test]

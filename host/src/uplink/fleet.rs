@@ -27,15 +27,20 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-use rumqttc::{AsyncClient, Event, EventLoop, Packet, Publish, QoS};
+use rumqttc::Outgoing;
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::mqttbytes::v5::{Filter, Packet, Publish};
+use rumqttc::v5::{AsyncClient, Event, EventLoop};
 use serde_json::{Value, json};
 use tokio::sync::oneshot;
 
-use super::broker::{self, Dial};
+use super::broker::Dial;
 use super::config::BrokerUrl;
+use super::json;
 use super::serve::unix_ms;
 use super::topic::{self, Topics, valid_name};
 use crate::client::{ClientError, Response};
+use crate::terminal;
 
 /// How long the first listing waits for the retained messages at most.
 pub const LISTING_WAIT: Duration = Duration::from_secs(1);
@@ -47,7 +52,10 @@ const LISTING_QUIET: Duration = Duration::from_millis(150);
 /// How a [`Fleet`] connects.
 #[derive(Clone, Debug, Default)]
 pub struct FleetOptions {
-    /// The client id (1-64 of `[A-Za-z0-9_-]`); default `lluav-<user>-<random>`.
+    /// The client id (1-64 of `[A-Za-z0-9_-]`); default: the user name
+    /// when one is given (the broker account is the identity: with the
+    /// recommended broker config the broker makes it so), else
+    /// `lluav-<random>`.
     pub client_id: Option<String>,
     /// User name at the broker.
     pub user: Option<String>,
@@ -114,13 +122,13 @@ impl VehicleInfo {
     }
 
     /// A row of the fleet table: id, online, fsm, armed, battery,
-    /// position, age.
+    /// position, age; what the vehicle wrote is escaped for a terminal.
     pub fn row(&self) -> [String; 7] {
         let s = self.state.as_ref().map(|r| &r["state"]);
         let field = |key: &str| s.map(|s| &s[key]).filter(|v| !v.is_null());
         let text = |v: Option<&Value>| match v {
-            Some(Value::String(s)) => s.clone(),
-            Some(v) => v.to_string(),
+            Some(Value::String(s)) => terminal::escape(s).into_owned(),
+            Some(v) => terminal::escape(&v.to_string()).into_owned(),
             None => "-".to_owned(),
         };
         let battery = field("battery")
@@ -213,7 +221,16 @@ impl Fleet {
                     "client id {id:?} is not 1-64 of [A-Za-z0-9_-]"
                 )));
             }
-            None => default_client_id(),
+            None => match &options.user {
+                Some(user) if valid_name(user) => user.clone(),
+                Some(user) => {
+                    return Err(FleetError::Usage(format!(
+                        "the client id defaults to the broker user name, and {user:?} is not 1-64 of \
+                         [A-Za-z0-9_-]: give one with --client-id"
+                    )));
+                }
+                None => default_client_id(),
+            },
         };
         let dial = Dial {
             broker: &broker,
@@ -221,12 +238,11 @@ impl Fleet {
             user: options.user.as_deref(),
             password: options.password.as_deref(),
             cafile: options.cafile.as_deref(),
-            max_packet: (1 << 20, 1 << 20),
+            max_packet: MAX_PACKET,
             queue: 256,
-            manual_acks: false,
+            in_flight: 64,
         };
         let (client, mut events) = AsyncClient::new(dial.options()?, 256);
-        broker::tune(&mut events);
         // The first connection is the caller's to wait for: a wrong URL or
         // password fails here, not at the first request.
         match events.poll().await {
@@ -245,12 +261,10 @@ impl Fleet {
             }
         }
         // Queued before any request, so the broker grants them first.
-        for filter in filters(&client_id) {
-            client
-                .subscribe(filter, QoS::AtLeastOnce)
-                .await
-                .map_err(|e| FleetError::Lost(e.to_string()))?;
-        }
+        client
+            .subscribe_many(filters(&client_id))
+            .await
+            .map_err(|e| FleetError::Lost(e.to_string()))?;
         let inner = Arc::new(Mutex::new(Inner::default()));
         let task = tokio::spawn(follow(
             events,
@@ -375,22 +389,25 @@ fn lock(inner: &Mutex<Inner>) -> MutexGuard<'_, Inner> {
     inner.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
-/// `lluav-<user>-<random>`, within the alphabet and 64 characters.
+/// `lluav-<random>`: a client id for a broker without accounts.
 fn default_client_id() -> String {
-    let user = std::env::var("USER").unwrap_or_default();
-    let user: String = topic::sanitize(&user, "op").chars().take(40).collect();
     let random = RandomState::new().hash_one(unix_ms()) & 0xffff_ffff;
-    format!("lluav-{user}-{random:08x}")
+    format!("lluav-{random:08x}")
 }
 
+/// The largest message a fleet takes: answers are at most a response
+/// buffer (64 KiB); the broker drops anything larger rather than send it.
+const MAX_PACKET: u32 = 1 << 20;
+
 /// What a fleet subscribes to: its answers, every vehicle's status and
-/// state.
-fn filters(client_id: &str) -> [String; 3] {
+/// state (their retained messages included).
+fn filters(client_id: &str) -> [Filter; 3] {
     [
         format!("{}/+/res/{client_id}", topic::ROOT),
         topic::every_vehicle("status"),
         topic::every_vehicle("state"),
     ]
+    .map(|path| Filter::new(path, QoS::AtLeastOnce))
 }
 
 /// Subscribes again after a reconnection (the session is clean).
@@ -398,9 +415,7 @@ fn subscribe(client: &AsyncClient, client_id: &str) {
     let client = client.clone();
     let filters = filters(client_id);
     tokio::spawn(async move {
-        for filter in filters {
-            let _ = client.subscribe(filter, QoS::AtLeastOnce).await;
-        }
+        let _ = client.subscribe_many(filters).await;
     });
 }
 
@@ -409,22 +424,16 @@ fn subscribe(client: &AsyncClient, client_id: &str) {
 /// and the connection is dialled again with backoff.
 async fn follow(mut events: EventLoop, client: AsyncClient, client_id: String, inner: Arc<Mutex<Inner>>) {
     let mut backoff = super::link::Backoff::default();
-    let mut subscriptions = 0;
     loop {
         match events.poll().await {
             Ok(Event::Incoming(Packet::Publish(p))) => heard(&inner, &p),
-            Ok(Event::Incoming(Packet::SubAck(_))) => {
-                subscriptions += 1;
-                if subscriptions % 3 == 0 {
-                    lock(&inner).granted = Some(Instant::now());
-                }
-            }
+            Ok(Event::Incoming(Packet::SubAck(_))) => lock(&inner).granted = Some(Instant::now()),
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
                 lock(&inner).down = None;
                 backoff.reset();
                 subscribe(&client, &client_id);
             }
-            Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)) => return,
+            Ok(Event::Outgoing(Outgoing::Disconnect)) => return,
             Ok(_) => {}
             Err(e) => {
                 {
@@ -439,12 +448,13 @@ async fn follow(mut events: EventLoop, client: AsyncClient, client_id: String, i
     }
 }
 
-/// Files one message from the broker.
+/// Files one message from the broker; JSON with a member named twice is
+/// no message (which of the two would be the vehicle's word?).
 fn heard(inner: &Mutex<Inner>, p: &Publish) {
-    let Some((vehicle, kind)) = topic::split_vehicle(&p.topic) else {
+    let Some((vehicle, kind)) = std::str::from_utf8(&p.topic).ok().and_then(topic::split_vehicle) else {
         return;
     };
-    let Ok(value) = serde_json::from_slice::<Value>(&p.payload) else {
+    let Some(value) = json::unique(&p.payload) else {
         return;
     };
     let mut inner = lock(inner);

@@ -11,23 +11,32 @@
 //!
 //! - [`topic`]: the topic layout and the id alphabet;
 //! - [`envelope`]: request and response envelopes;
+//! - [`json`]: JSON that refuses members named twice;
 //! - [`table`]: sessions per client id, requests in flight, and the
 //!   10-minute memory of request ids that makes repeats harmless;
+//! - [`durable`]: the answers of requests that change the vehicle, kept in
+//!   the data directory across a restart;
+//! - [`serve`]: requests through the table to the workers, answers out;
 //! - [`link`]: the link's state (`state.uplink`) and the reconnect backoff;
 //! - [`config`]: the flags and config keys;
 //! - [`fleet`]: the operator's side, for `lluav --broker`.
 //!
-//! Broker connection: MQTT 3.1.1 (rumqttc), keep-alive 10 s, clean
-//! session; a retained `online` status on every connection and a retained
-//! will saying `offline`, which lluavd also publishes itself on a clean
-//! stop. The WebSocket side never waits on the broker: the uplink's tasks
-//! take the vehicle's lock for one message at a time, as a WebSocket
+//! Broker connection: MQTT 5 (rumqttc's `v5` client), keep-alive 10 s,
+//! clean start, no session expiry. The CONNECT's Maximum Packet Size keeps
+//! anything larger than a request may be away from the vehicle (the broker
+//! drops it), and the subscription's Retain Handling 2 keeps retained
+//! messages away. A retained `online` status on every connection and a
+//! retained will saying `offline`, which lluavd also publishes itself on a
+//! clean stop. The WebSocket side never waits on the broker: the uplink's
+//! tasks take the vehicle's lock for one message at a time, as a WebSocket
 //! session does, and never hold it across a wait for the broker.
 
 pub mod broker;
 pub mod config;
+pub mod durable;
 pub mod envelope;
 pub mod fleet;
+pub mod json;
 pub mod link;
 pub mod serve;
 pub mod state;
@@ -35,12 +44,16 @@ pub mod table;
 pub mod topic;
 
 use std::future::Future;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use lluav_core::{Outcome, Session};
-use rumqttc::{AsyncClient, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS};
+use rumqttc::Outgoing;
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::mqttbytes::v5::{Filter, LastWill, Packet, RetainForwardRule};
+use rumqttc::v5::{AsyncClient, Event, EventLoop, MqttOptions};
 use tokio::sync::watch;
 use tracing::{info, warn};
 
@@ -100,6 +113,20 @@ pub struct Limits {
     pub table: table::Limits,
 }
 
+impl Limits {
+    /// The vehicle's Maximum Packet Size: a request envelope of
+    /// `--max-message` bytes with its topic and properties. The broker
+    /// drops a larger message instead of sending it.
+    pub fn max_packet(&self) -> u32 {
+        u32::try_from(self.max_message.saturating_add(PACKET_ALLOWANCE)).unwrap_or(u32::MAX)
+    }
+}
+
+/// What a PUBLISH may add to its payload: fixed header, topic (at most
+/// `lluav/` + 64 + `/req/` + 64 bytes) and the properties a broker
+/// forwards (Message Expiry, a content type, user properties).
+pub const PACKET_ALLOWANCE: usize = 2048;
+
 /// How long a clean stop waits for requests already running, and then
 /// for the broker to take the `offline` status.
 const STOP_GRACE: Duration = Duration::from_secs(3);
@@ -107,12 +134,14 @@ const STOP_GRACE: Duration = Duration::from_secs(3);
 /// How often idle sessions and old request ids are swept.
 const SWEEP: Duration = Duration::from_secs(1);
 
-/// Requests the connection's queue holds (answers, acknowledgements,
-/// state, status): room for an answer and an acknowledgement to each of
-/// the messages a broker queues for one client (Mosquitto: 1000), so that
-/// a burst of QoS 1 requests is answered whole. (A broker sends that
-/// queue at once: it does not wait for acknowledgements.)
-const QUEUE: usize = 4096;
+/// Requests the connection's own queue holds (answers, state, status,
+/// subscriptions): answers wait in the uplink's outbox, bounded in bytes,
+/// and only a few of them here.
+const QUEUE: usize = 16;
+
+/// QoS 1 answers sent and not yet acknowledged by the broker, at most:
+/// each waits in memory (Mosquitto grants 20).
+const IN_FLIGHT: u16 = 32;
 
 /// The uplink, configured and not yet running.
 pub struct Uplink {
@@ -120,40 +149,40 @@ pub struct Uplink {
     settings: Settings,
     limits: Limits,
     status: StatusCell,
+    data_dir: Option<PathBuf>,
 }
 
 impl Uplink {
     /// An uplink with `settings` and `limits`, reporting its state in
-    /// `status`; fails on an unusable CA file.
-    pub fn new(settings: Settings, limits: Limits, status: StatusCell) -> Result<Uplink, ClientError> {
+    /// `status`, keeping the answers of requests that change the vehicle
+    /// in `data_dir` (none: in memory only); fails on an unusable CA file.
+    pub fn new(
+        settings: Settings,
+        limits: Limits,
+        status: StatusCell,
+        data_dir: Option<PathBuf>,
+    ) -> Result<Uplink, ClientError> {
         let topics = Topics::new(&settings.vehicle_id);
-        let client_id = format!("lluavd-{}", settings.vehicle_id);
+        let client_id = settings.client_id();
         let dial = Dial {
             broker: &settings.broker,
             client_id: &client_id,
             user: settings.user.as_deref(),
             password: settings.password.as_deref(),
             cafile: settings.cafile.as_deref(),
-            // Room for an envelope over --max-message, so that it can be
-            // answered rather than cost the connection.
-            max_packet: (
-                limits
-                    .max_message
-                    .saturating_mul(2)
-                    .max(limits.max_message + 4096),
-                limits.response_capacity + 4096,
-            ),
+            max_packet: limits.max_packet(),
             queue: QUEUE,
-            manual_acks: true,
+            in_flight: IN_FLIGHT,
         };
         let mut options = dial.options()?;
         let will = serde_json::json!({"vehicle": topics.vehicle(), "online": false}).to_string();
-        options.set_last_will(LastWill::new(topics.status(), will, QoS::AtLeastOnce, true));
+        options.set_last_will(LastWill::new(topics.status(), will, QoS::AtLeastOnce, true, None));
         Ok(Uplink {
             options,
             settings,
             limits,
             status,
+            data_dir,
         })
     }
 
@@ -162,33 +191,61 @@ impl Uplink {
         &self.status
     }
 
+    /// Opens the store of answers in the data directory (reading what a
+    /// previous run kept): before [`Uplink::run`], so that a daemon that
+    /// cannot keep them does not start.
+    pub fn open_store(&self) -> std::io::Result<Option<Store>> {
+        let Some(dir) = &self.data_dir else {
+            return Ok(None);
+        };
+        let window = Duration::from_millis(self.limits.table.window_ms);
+        durable::Store::open(dir, window, serve::unix_ms()).map(Some)
+    }
+
     /// Serves `sessions` through the broker until `stop` turns true, then
     /// stops cleanly: answers what is running, publishes `offline`,
-    /// disconnects.
-    pub async fn run<S: Sessions>(self, sessions: Arc<S>, mut stop: watch::Receiver<bool>) {
+    /// disconnects. `store`: what [`Uplink::open_store`] opened.
+    pub async fn run<S: Sessions>(
+        self,
+        sessions: Arc<S>,
+        store: Option<Store>,
+        mut stop: watch::Receiver<bool>,
+    ) {
         let topics = Topics::new(&self.settings.vehicle_id);
-        let (client, mut events) = AsyncClient::new(self.options, QUEUE);
-        broker::tune(&mut events);
+        let (client, events) = AsyncClient::new(self.options, QUEUE);
         let shared = Arc::new(Shared::new(
             sessions,
             client,
             topics,
             &self.limits,
             self.status.clone(),
+            store,
         ));
-        let publisher = tokio::spawn(state::publish(Arc::clone(&shared), self.settings.state_hz));
-        let sweeper = tokio::spawn(sweep(Arc::clone(&shared)));
+        let mut tasks = vec![
+            tokio::spawn(state::publish(Arc::clone(&shared), self.settings.state_hz)),
+            tokio::spawn(sweep(Arc::clone(&shared))),
+            tokio::spawn(serve::send(Arc::clone(&shared))),
+        ];
+        let workers: Vec<_> = (0..serve::WORKERS)
+            .map(|_| tokio::spawn(serve::work(Arc::clone(&shared))))
+            .collect();
         let (gone_tx, gone_rx) = watch::channel(false);
         let broker = self.settings.broker.to_string();
         let connection = tokio::spawn(connection(Arc::clone(&shared), events, broker, gone_rx));
         let _ = stop.wait_for(|stopping| *stopping).await;
         shared.stopping.store(true, Ordering::Relaxed);
-        publisher.abort();
-        sweeper.abort();
+        shared.wake_all();
         goodbye(&shared, connection, gone_tx).await;
+        tasks.extend(workers);
+        for task in tasks {
+            task.abort();
+        }
         shared.status.set(Status::Down);
     }
 }
+
+/// The store of answers and what it kept of the last window.
+pub type Store = (durable::Store, Vec<durable::Found>);
 
 /// Sweeps idle sessions and old request ids.
 async fn sweep<S: Sessions>(shared: Arc<Shared<S>>) {
@@ -207,7 +264,9 @@ async fn goodbye<S: Sessions>(
     gone: watch::Sender<bool>,
 ) {
     let deadline = Instant::now() + STOP_GRACE;
-    while shared.busy() && Instant::now() < deadline {
+    // Answers waiting go out first, while there is a broker to take them.
+    let waiting = || shared.busy() || (shared.status.get() == Status::Up && shared.outbox.bytes() > 0);
+    while waiting() && Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     if shared.status.get() == Status::Up {
@@ -216,7 +275,7 @@ async fn goodbye<S: Sessions>(
             let topic = shared.topics.status().to_owned();
             shared
                 .client
-                .publish(topic, QoS::AtLeastOnce, true, offline.into_bytes())
+                .publish(topic, QoS::AtLeastOnce, true, offline)
                 .await?;
             shared.client.disconnect().await
         };
@@ -244,8 +303,10 @@ async fn connection<S: Sessions>(
     let mut tried = false;
     loop {
         match events.poll().await {
-            Ok(Event::Incoming(Packet::ConnAck(_))) => {
+            Ok(Event::Incoming(Packet::ConnAck(connack))) => {
                 up_since = Some(Instant::now());
+                let max = connack.properties.and_then(|p| p.max_packet_size).unwrap_or(0);
+                shared.broker_max.store(max, Ordering::Relaxed);
                 if shared.status.set(Status::Up) != Status::Up {
                     info!(%broker, vehicle = shared.topics.vehicle(), "uplink up");
                 }
@@ -278,7 +339,7 @@ async fn connection<S: Sessions>(
 }
 
 /// After every (re)connection: subscribe to this vehicle's requests and
-/// say it is online (retained). Clean session: the broker kept nothing.
+/// say it is online (retained). Clean start: the broker kept nothing.
 async fn announce<S: Sessions>(shared: Arc<Shared<S>>) {
     let topics = &shared.topics;
     let online = serde_json::json!({
@@ -288,17 +349,18 @@ async fn announce<S: Sessions>(shared: Arc<Shared<S>>) {
         "ts": serve::unix_ms(),
     })
     .to_string();
+    // Requests only live: no retained message is sent on subscribing
+    // (Retain Handling 2), and nothing the vehicle sends comes back.
+    let requests = Filter {
+        path: topics.request_filter(),
+        qos: QoS::AtLeastOnce,
+        nolocal: true,
+        preserve_retain: false,
+        retain_forward_rule: RetainForwardRule::Never,
+    };
+    let _ = shared.client.subscribe_many([requests]).await;
     let _ = shared
         .client
-        .subscribe(topics.request_filter(), QoS::AtLeastOnce)
-        .await;
-    let _ = shared
-        .client
-        .publish(
-            topics.status().to_owned(),
-            QoS::AtLeastOnce,
-            true,
-            online.into_bytes(),
-        )
+        .publish(topics.status().to_owned(), QoS::AtLeastOnce, true, online)
         .await;
 }

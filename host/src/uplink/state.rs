@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use rumqttc::QoS;
+use rumqttc::v5::mqttbytes::QoS;
 use serde_json::Value;
 use tokio::time::{Instant, MissedTickBehavior, interval};
 
@@ -76,7 +76,7 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64) {
             // Fails only once the connection's task is gone (shutdown).
             let _ = shared
                 .client
-                .publish(topic, QoS::AtMostOnce, true, response.into_bytes())
+                .publish(topic, QoS::AtMostOnce, true, response)
                 .await;
             last = Some((salient, now));
         }

@@ -10,7 +10,7 @@ use embassy_sync::signal::Signal;
 use lluav_core::Failure;
 use lluav_embedded::board::{Board, Led, Peripherals};
 use lluav_embedded::firmware::{self, SESSIONS, SessionSlot, Uptime};
-use lluav_embedded::{SharedServer, serve};
+use lluav_embedded::{SharedServer, serve_slot};
 use static_cell::{ConstStaticCell, StaticCell};
 
 use crate::{CONFIG, halt, unwrap_spawn};
@@ -21,10 +21,14 @@ pub const SOCKETS: usize = SESSIONS;
 const FPGAIO_LED: usize = 0x4002_8000;
 
 type Shared = SharedServer<CriticalSectionRawMutex, Board<Mps2>, Uptime>;
+type Admission = lluav_embedded::admission::Table<SESSIONS>;
 
 static SLOTS: ConstStaticCell<[SessionSlot; SESSIONS]> =
     ConstStaticCell::new([const { SessionSlot::new() }; SESSIONS]);
 static SERVER: StaticCell<Shared> = StaticCell::new();
+/// Who holds which slot, shared by the session tasks (built at boot, as
+/// on the NUCLEO).
+static ADMISSION: StaticCell<Admission> = StaticCell::new();
 static LED: Signal<CriticalSectionRawMutex, Led> = Signal::new();
 
 /// The board as the backend sees it: FPGAIO's LED 0, no PWM output, no
@@ -50,9 +54,16 @@ async fn led_task() -> ! {
     .await
 }
 
-#[embassy_executor::task]
-async fn server_task(stack: Stack<'static>, server: &'static Shared) -> ! {
-    serve(stack, &CONFIG, server, SLOTS.take()).await
+/// One session slot: a task each, as on the NUCLEO.
+#[embassy_executor::task(pool_size = SESSIONS)]
+async fn session_task(
+    stack: Stack<'static>,
+    server: &'static Shared,
+    index: usize,
+    admission: &'static Admission,
+    slot: &'static mut SessionSlot,
+) -> ! {
+    serve_slot(stack, &CONFIG, admission, index, server, slot).await
 }
 
 /// Builds the server from the build's password and serves it on `stack`.
@@ -63,5 +74,8 @@ pub fn start(spawner: Spawner, stack: Stack<'static>) {
     };
     let server = SERVER.init(SharedServer::new(server));
     spawner.spawn(unwrap_spawn(led_task()));
-    spawner.spawn(unwrap_spawn(server_task(stack, server)));
+    let admission = ADMISSION.init(Admission::new());
+    for (index, slot) in SLOTS.take().iter_mut().enumerate() {
+        spawner.spawn(unwrap_spawn(session_task(stack, server, index, admission, slot)));
+    }
 }

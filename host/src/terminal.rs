@@ -1,0 +1,103 @@
+//! Text from the network on a terminal (DESIGN.md, "Uplink"): control
+//! characters (Unicode Cc: C0, DEL, C1) and invisible format characters
+//! (Cf, e.g. U+202E) are written as JSON escapes (`\u001b`), so that a
+//! vehicle's state, a response or an event can neither drive the terminal
+//! (clear the screen, set the window title, move the cursor over earlier
+//! rows) nor reorder what follows it.
+//!
+//! The escapes are JSON's: [`escape`] of a JSON text is the same JSON
+//! value, and a line of plain text shows the character's code point.
+
+use std::borrow::Cow;
+use std::fmt::Write as _;
+
+/// The Unicode format characters (general category Cf, Unicode 16), as
+/// `(first, last)`: the same set core refuses in names and stored text.
+const FORMAT: [(u32, u32); 21] = [
+    (0xAD, 0xAD),
+    (0x600, 0x605),
+    (0x61C, 0x61C),
+    (0x6DD, 0x6DD),
+    (0x70F, 0x70F),
+    (0x890, 0x891),
+    (0x8E2, 0x8E2),
+    (0x180E, 0x180E),
+    (0x200B, 0x200F),
+    (0x202A, 0x202E),
+    (0x2060, 0x2064),
+    (0x2066, 0x206F),
+    (0xFEFF, 0xFEFF),
+    (0xFFF9, 0xFFFB),
+    (0x110BD, 0x110BD),
+    (0x110CD, 0x110CD),
+    (0x13430, 0x1343F),
+    (0x1BCA0, 0x1BCA3),
+    (0x1D173, 0x1D17A),
+    (0xE0001, 0xE0001),
+    (0xE0020, 0xE007F),
+];
+
+/// Whether `c` must not reach a terminal as it is.
+pub fn unsafe_char(c: char) -> bool {
+    let n = u32::from(c);
+    c.is_control() || FORMAT.iter().any(|&(first, last)| (first..=last).contains(&n))
+}
+
+/// `text` with every [`unsafe_char`] written as a JSON escape (`\u001b`;
+/// a surrogate pair beyond U+FFFF). Borrowed when there is none.
+pub fn escape(text: &str) -> Cow<'_, str> {
+    if !text.chars().any(unsafe_char) {
+        return Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len() + 16);
+    for c in text.chars() {
+        if unsafe_char(c) {
+            let mut units = [0u16; 2];
+            for unit in c.encode_utf16(&mut units) {
+                // Writing into a String cannot fail.
+                let _ = write!(out, "\\u{unit:04x}");
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    Cow::Owned(out)
+}
+
+/// [`escape`], line breaks kept: for text of several lines whose breaks
+/// are its layout (pretty JSON, whose strings hold no raw line break).
+pub fn escape_lines(text: &str) -> String {
+    text.split('\n').map(escape).collect::<Vec<_>>().join("\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn control_and_format_characters_are_escaped_and_the_rest_kept() {
+        assert!(matches!(escape("disarmed é ✓"), Cow::Borrowed(_)));
+        assert_eq!(
+            escape("\u{1b}[2J\u{1b}]0;pwned\u{7}"),
+            "\\u001b[2J\\u001b]0;pwned\\u0007"
+        );
+        assert_eq!(escape("a\u{9b}b\u{7f}c"), "a\\u009bb\\u007fc");
+        assert_eq!(escape("evil\u{202e}gpj.exe"), "evil\\u202egpj.exe");
+        assert_eq!(escape("tag\u{e0041}"), "tag\\udb40\\udc41");
+        assert_eq!(escape("line\nnext\r"), "line\\u000anext\\u000d");
+        assert_eq!(
+            escape_lines("{\n  \"a\": \"\u{1b}\"\n}"),
+            "{\n  \"a\": \"\\u001b\"\n}"
+        );
+    }
+
+    #[test]
+    fn escaped_json_is_the_same_json() {
+        let value = serde_json::json!({"fsm": "\u{1b}[2J\u{202e}\u{85}\u{e0020}x", "n": 1});
+        let text = serde_json::to_string(&value).expect("JSON");
+        let escaped = escape(&text);
+        assert!(!escaped.chars().any(unsafe_char), "{escaped}");
+        let back: serde_json::Value = serde_json::from_str(&escaped).expect("still JSON");
+        assert_eq!(back, value);
+    }
+}
