@@ -239,6 +239,14 @@ impl<V: Vehicle> uplink::Sessions for Protocol<V> {
         self.outbox.release(session.0);
     }
 
+    fn events(&self) -> Option<crate::events::Subscriber> {
+        Some(self.outbox.bus().subscribe())
+    }
+
+    fn tell(&self, event: Event) {
+        self.outbox.stage(None, [event], SystemClock.unix_ms());
+    }
+
     fn state(&self, reporter: &mut Session, out: &mut [u8]) -> Option<String> {
         self.locked(|server| {
             // The state topic is for whoever the broker lets read it: the

@@ -4,8 +4,10 @@
 //! messages, status and will, state publishing, broker restarts, mqtts,
 //! credentials, the README's broker config and ACL, bridged brokers,
 //! several vehicles, the `lluav --broker` command line, what its requests
-//! did told on the `/events` stream, and a stand-in broker that floods and
-//! never reads. Needs `--features broker` (scripts/test-uplink.sh).
+//! did told on the `/events` stream, a flight told alike on `/events` and
+//! `lluav/V/events`, the uplink's own up and down as events, the state
+//! topic following a change, and a stand-in broker that floods and never
+//! reads. Needs `--features broker` (scripts/test-uplink.sh).
 
 use std::collections::{HashMap, HashSet};
 use std::os::unix::net::UnixDatagram;
@@ -1772,5 +1774,187 @@ async fn one_session_flies_across_websocket_and_the_uplink() {
         "{released}"
     );
     assert_eq!(ws.request("control").await["control"], Value::Null);
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+/// The next event on `lluav/V/events` of `watch`, as JSON: never retained.
+async fn broker_event(watch: &mut Mqtt) -> Value {
+    let p = watch.next().await;
+    assert!(!p.retain, "events are not retained");
+    assert!(topic(&p).ends_with("/events"), "{}", topic(&p));
+    serde_json::from_slice(&p.payload).expect("an event is JSON")
+}
+
+/// The next event on a `/events` subscriber, whatever it is.
+async fn any_event(sub: &mut Conn) -> Value {
+    match sub.recv().await {
+        lluav_tests::Received::Text(t) => serde_json::from_str(&t).expect("an event is JSON"),
+        other => panic!("expected an event, got {other:?}"),
+    }
+}
+
+/// What identifies a flight event: its name and the fields that say what
+/// happened (labels, FSM states, mission progress).
+fn gist(e: &Value) -> Value {
+    let mut g = serde_json::json!({"event": e["event"]});
+    for key in [
+        "from", "to", "armed", "status", "wp", "index", "count", "ext_id", "by",
+    ] {
+        if let Some(v) = e.get(key) {
+            g[key] = v.clone();
+        }
+    }
+    g
+}
+
+/// Asserts that `events` count on one by one.
+fn consecutive(events: &[Value]) {
+    for pair in events.windows(2) {
+        assert_eq!(
+            pair[1]["seq"].as_u64(),
+            pair[0]["seq"].as_u64().map(|s| s + 1),
+            "seq counts on: {} then {}",
+            pair[0],
+            pair[1]
+        );
+    }
+}
+
+#[tokio::test]
+async fn a_flight_is_told_alike_on_the_events_endpoint_and_the_broker() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let options = Options::password(PASSWORD).with_args(&["--sim-speed", "10"]);
+    let daemon = vehicle(dir.path(), &broker, "v1", options).await;
+    let mut sub = Conn::connect(&format!("{}/events", daemon.url)).await;
+    assert_eq!(sub.request(&format!("login {PASSWORD}")).await["ret"], 0);
+    let mut watch = Mqtt::connect(&broker, "watch-events").await;
+    watch.subscribe("lluav/v1/events").await;
+
+    // A WebSocket pilot takes off and flies a three-waypoint mission; an
+    // operator through the broker takes over and lands.
+    let mut a = Conn::login(&daemon.url, PASSWORD).await;
+    assert_eq!(a.request("takeoff").await["ret"], 0);
+    let pilot_a = a.request("control").await["control"]["by"].clone();
+    lluav_tests::wait_for_state(&mut a, "hovering", |s| s["fsm"] == "hover").await;
+    let mission = r#"mission 7:{"waypoints":[{"id":11,"x":2,"y":0,"z":-2},{"id":12,"x":2,"y":2,"z":-2},{"id":13,"x":0,"y":2,"z":-2}]}"#;
+    assert_eq!(a.request(mission).await["ret"], 0);
+    assert_eq!(a.request("mw_exec 7:11,12,13").await["ret"], 0);
+    lluav_tests::wait_for_state(&mut a, "done with the mission", |s| s["fsm"] == "hover").await;
+    let mut op = operator(&broker, "op").await;
+    let login = op.request("v1", "op", "1", &format!("login {PASSWORD}")).await;
+    assert_eq!(login["response"]["ret"], 0, "{login}");
+    let taken = op.request("v1", "op", "2", "control_take").await;
+    assert_eq!(taken["response"]["ret"], 0, "{taken}");
+    let pilot_op = taken["response"]["control"]["by"].clone();
+    assert_eq!(op.request("v1", "op", "3", "land").await["response"]["ret"], 0);
+
+    // The /events stream until the motors stop: the landing is over.
+    let mut told = Vec::new();
+    while told
+        .last()
+        .is_none_or(|e: &Value| e["event"] != "armed" || e["armed"] != false)
+    {
+        told.push(any_event(&mut sub).await);
+    }
+    consecutive(&told);
+    let flight: Vec<Value> = told
+        .iter()
+        .filter(|e| !matches!(e["event"].as_str(), Some("battery" | "log")))
+        .map(gist)
+        .collect();
+    let reached = |wp: u32, index: u32| serde_json::json!({"event": "mission", "ext_id": 7, "status": "reached", "wp": wp, "index": index, "count": 3});
+    let expected = [
+        serde_json::json!({"event": "control", "by": pilot_a, "from": null}),
+        serde_json::json!({"event": "fsm", "from": "disarmed", "to": "takeoff"}),
+        serde_json::json!({"event": "armed", "armed": true}),
+        serde_json::json!({"event": "fsm", "from": "takeoff", "to": "hover"}),
+        serde_json::json!({"event": "mission", "ext_id": 7, "status": "started"}),
+        serde_json::json!({"event": "fsm", "from": "hover", "to": "mission"}),
+        reached(11, 1),
+        reached(12, 2),
+        reached(13, 3),
+        serde_json::json!({"event": "mission", "ext_id": 7, "status": "completed"}),
+        serde_json::json!({"event": "fsm", "from": "mission", "to": "hover"}),
+        serde_json::json!({"event": "control", "by": pilot_op, "from": pilot_a}),
+        serde_json::json!({"event": "fsm", "from": "hover", "to": "landing"}),
+        serde_json::json!({"event": "fsm", "from": "landing", "to": "armed"}),
+        serde_json::json!({"event": "fsm", "from": "armed", "to": "disarmed"}),
+        serde_json::json!({"event": "armed", "armed": false}),
+    ];
+    assert_eq!(flight, expected);
+
+    // The broker carried the very same objects, in the same order.
+    let mut carried = Vec::new();
+    while carried.len() < told.len() {
+        carried.push(broker_event(&mut watch).await);
+    }
+    assert_eq!(carried, told, "the same objects on both");
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+#[tokio::test]
+async fn the_state_topic_follows_a_takeoff_at_once_however_slow_its_rate() {
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    // Every 100 s: any state but the first within the test came from a
+    // change, not from the rate.
+    let options = open_vehicle().with_args(&["--uplink-state-hz", "0.01"]);
+    let daemon = vehicle(dir.path(), &broker, "v1", options).await;
+    let mut watch = Mqtt::connect(&broker, "watch-state").await;
+    watch.subscribe("lluav/v1/state").await;
+    let (_, first) = watch.json().await;
+    assert_eq!(first["state"]["fsm"], "disarmed", "{first}");
+    let mut ws = Conn::connect(&daemon.url).await;
+    let asked = Instant::now();
+    assert_eq!(ws.request("takeoff").await["ret"], 0);
+    let (_, next) = watch.json().await;
+    let took = asked.elapsed();
+    assert_eq!(
+        (&next["state"]["fsm"], &next["state"]["armed"]),
+        (&"takeoff".into(), &true.into()),
+        "{next}"
+    );
+    // Published on the takeoff's events, not found by reading the state
+    // on a timer: within a couple of seconds even on a loaded machine.
+    assert!(took < Duration::from_secs(2), "{took:?}");
+    assert_eq!(daemon.terminate().code(), Some(0));
+}
+
+#[tokio::test]
+async fn the_uplink_tells_its_own_down_and_up_and_its_stream_goes_on_after_a_restart() {
+    let mut broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = vehicle(dir.path(), &broker, "v1", open_vehicle()).await;
+    let mut sub = Conn::connect(&format!("{}/events", daemon.url)).await;
+    broker.stop();
+    let down = any_event(&mut sub).await;
+    assert_eq!(
+        (&down["event"], &down["state"]),
+        (&"uplink".into(), &"down".into()),
+        "{down}"
+    );
+    broker.run();
+    let up = any_event(&mut sub).await;
+    assert_eq!(
+        (&up["event"], &up["state"]),
+        (&"uplink".into(), &"up".into()),
+        "{up}"
+    );
+    assert_eq!(up["seq"].as_u64(), down["seq"].as_u64().map(|s| s + 1), "{up}");
+    // The broker's stream goes on with the next seq: the down was not
+    // carried, the up was (before anyone here could listen again).
+    let mut watch = Mqtt::connect(&broker, "watch-events").await;
+    watch.subscribe("lluav/v1/events").await;
+    let mut ws = Conn::connect(&daemon.url).await;
+    assert_eq!(ws.request("takeoff").await["ret"], 0);
+    let (on_ws, carried) = (any_event(&mut sub).await, broker_event(&mut watch).await);
+    assert_eq!(on_ws["event"], "control", "{on_ws}");
+    assert_eq!(
+        on_ws["seq"].as_u64(),
+        up["seq"].as_u64().map(|s| s + 1),
+        "{on_ws}"
+    );
+    assert_eq!(carried, on_ws);
     assert_eq!(daemon.terminate().code(), Some(0));
 }

@@ -221,6 +221,17 @@ impl Subscriber {
             Err(broadcast::error::RecvError::Closed) => Next::Closed,
         }
     }
+
+    /// The next event if one is there already, without waiting: for a
+    /// subscriber that acts once on a burst of events.
+    pub fn try_next(&mut self) -> Option<Next> {
+        match self.rx.try_recv() {
+            Ok(e) => Some(Next::Event(e)),
+            Err(broadcast::error::TryRecvError::Lagged(n)) => Some(Next::Gap(n)),
+            Err(broadcast::error::TryRecvError::Closed) => Some(Next::Closed),
+            Err(broadcast::error::TryRecvError::Empty) => None,
+        }
+    }
 }
 
 /// Now, ms since the Unix epoch (0 for a clock before 1970): events and
@@ -294,6 +305,16 @@ mod tests {
             panic!()
         };
         assert_eq!(e.seq, 11);
+    }
+
+    #[test]
+    fn try_next_takes_what_is_there_and_never_waits() {
+        let bus = Bus::new("b".into());
+        let mut sub = bus.subscribe();
+        assert_eq!(sub.try_next(), None);
+        bus.publish(Event::Link { up: true }, 1);
+        assert!(matches!(sub.try_next(), Some(Next::Event(e)) if e.seq == 1));
+        assert_eq!(sub.try_next(), None);
     }
 
     #[test]

@@ -262,6 +262,8 @@ async fn upgrade<S, H>(
             return refuse(stream, peer, &refusal, offence, deadline, shared).await;
         }
     };
+    // On the bus before the `101`: all that follows the upgrade is told.
+    let early = events.then(|| shared.handler.subscribe()).flatten();
     let answered = timeout_at(deadline, async {
         stream.write_all(&handshake::switching_protocols(&key)).await?;
         stream.flush().await
@@ -277,7 +279,7 @@ async fn upgrade<S, H>(
             subscriber::small_send_buffer(fd);
         }
         let cx = context(shared);
-        subscriber::serve(stream, leftover, peer, slot, cx, stop).await;
+        subscriber::serve(stream, leftover, peer, slot, cx, stop, early).await;
     } else {
         session(stream, peer, leftover, slot, shared, stop).await;
     }

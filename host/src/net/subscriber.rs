@@ -68,7 +68,8 @@ enum Stop {
     Gone,
 }
 
-/// Serves one `/events` subscriber until it ends.
+/// Serves one `/events` subscriber until it ends; `early`: its place on
+/// the bus, taken before its `101` (none: taken once it is admitted).
 pub async fn serve<S, H>(
     stream: S,
     leftover: Vec<u8>,
@@ -76,6 +77,7 @@ pub async fn serve<S, H>(
     slot: Held,
     cx: Context<'_, H>,
     mut stop: watch::Receiver<bool>,
+    early: Option<Subscriber>,
 ) where
     S: AsyncRead + AsyncWrite + Unpin,
     H: Handler,
@@ -85,6 +87,7 @@ pub async fn serve<S, H>(
         reader: Reader::new(leftover, cx.limits.max_message),
         outbox: Vec::new(),
         limits: cx.limits,
+        early,
     };
     let mut session = cx.handler.session(peer);
     let cancel = std::sync::Arc::clone(&slot.cancel);
@@ -124,6 +127,9 @@ struct Stream<S> {
     reader: Reader,
     outbox: Vec<u8>,
     limits: Limits,
+    /// The place on the bus taken before the `101` (without a password)
+    /// or before a login's answer, until the loop takes it.
+    early: Option<Subscriber>,
 }
 
 impl<S: AsyncRead + AsyncWrite + Unpin> Stream<S> {
@@ -177,11 +183,14 @@ where
     let mut ping_sent: Option<Instant> = None;
     loop {
         if events.is_none() && handler.admitted(session) {
-            let Some(sub) = handler.subscribe() else {
+            let Some(sub) = s.early.take().or_else(|| handler.subscribe()) else {
                 return Stop::Close(CloseCode::InternalError, "no events here");
             };
             slot.admit();
             events = Some(sub);
+        } else if events.is_none() {
+            // Not admitted yet: what happens before its login is not its.
+            s.early = None;
         }
         let subscribed = events.is_some();
         let ping_due = ping_sent.map_or(next_ping, |sent| sent + PING_EVERY);
@@ -277,6 +286,10 @@ where
     }
     let outcome = handler.handle(session, message, out).await;
     let (reply, code) = (outcome.reply().map(str::to_owned), outcome.close_code());
+    // On the bus before the login's answer: all that follows it is told.
+    if handler.admitted(session) {
+        s.early = handler.subscribe();
+    }
     if let Some(text) = reply
         && !s.send_text(&text).await
     {

@@ -4,8 +4,9 @@
 use std::fmt;
 use std::hash::{BuildHasher, RandomState};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Duration;
+
+use tokio::sync::watch;
 
 /// The uplink's state.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -36,39 +37,33 @@ impl fmt::Display for Status {
 }
 
 /// The uplink's state, shared: the uplink writes it, `state` and the
-/// service manager read it.
+/// service manager read it, and the uplink's own tasks wait on it (events
+/// go out only while it is up).
 #[derive(Clone, Debug)]
-pub struct StatusCell(Arc<AtomicU8>);
+pub struct StatusCell(Arc<watch::Sender<Status>>);
 
 impl StatusCell {
     /// `Down` when an uplink is configured (until it connects), else `Off`.
     pub fn new(configured: bool) -> StatusCell {
-        let cell = StatusCell(Arc::new(AtomicU8::new(0)));
-        cell.set(if configured { Status::Down } else { Status::Off });
-        cell
+        let status = if configured { Status::Down } else { Status::Off };
+        StatusCell(Arc::new(watch::Sender::new(status)))
     }
 
     /// The state now.
     pub fn get(&self) -> Status {
-        match self.0.load(Ordering::Relaxed) {
-            2 => Status::Up,
-            1 => Status::Down,
-            _ => Status::Off,
-        }
+        *self.0.borrow()
     }
 
     /// Sets the state; returns the one it replaces.
     pub fn set(&self, status: Status) -> Status {
-        let n = match status {
-            Status::Off => 0,
-            Status::Down => 1,
-            Status::Up => 2,
-        };
-        match self.0.swap(n, Ordering::Relaxed) {
-            2 => Status::Up,
-            1 => Status::Down,
-            _ => Status::Off,
-        }
+        self.0.send_replace(status)
+    }
+
+    /// Returns once the state is `Up` (at once if it is).
+    pub async fn up(&self) {
+        let mut seen = self.0.subscribe();
+        // The sender lives in `self`: waiting cannot fail.
+        let _ = seen.wait_for(|s| *s == Status::Up).await;
     }
 }
 
@@ -139,5 +134,19 @@ mod tests {
         assert_eq!(cell.set(Status::Up), Status::Down);
         assert_eq!(cell.clone().get(), Status::Up);
         assert_eq!(StatusCell::new(false).get().as_str(), "off");
+    }
+
+    #[tokio::test]
+    async fn waiting_for_up_returns_once_it_is_set() {
+        let cell = StatusCell::new(true);
+        let waiting = tokio::spawn({
+            let cell = cell.clone();
+            async move { cell.up().await }
+        });
+        tokio::task::yield_now().await;
+        assert!(!waiting.is_finished());
+        cell.set(Status::Up);
+        waiting.await.expect("returned");
+        cell.up().await;
     }
 }

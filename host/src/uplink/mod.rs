@@ -17,6 +17,8 @@
 //! - [`durable`]: the answers of requests that change the vehicle, kept in
 //!   the data directory across a restart;
 //! - [`serve`]: requests through the table to the workers, answers out;
+//! - [`state`]: the retained `state` topic, on change and at a rate;
+//! - [`events`]: the `events` topic, every event of the bus;
 //! - [`link`]: the link's state (`state.uplink`) and the reconnect backoff;
 //! - [`config`]: the flags and config keys;
 //! - [`fleet`]: the operator's side, for `lluav --broker`.
@@ -35,6 +37,7 @@ pub mod broker;
 pub mod config;
 pub mod durable;
 pub mod envelope;
+pub mod events;
 pub mod fleet;
 pub mod json;
 pub mod link;
@@ -96,6 +99,18 @@ pub trait Sessions: Send + Sync + 'static {
         let _ = session;
     }
 
+    /// A subscriber of the events bus, for the `events` topic and the state
+    /// on change (`None`: this protocol tells no events).
+    fn events(&self) -> Option<crate::events::Subscriber> {
+        None
+    }
+
+    /// Tells `event` on the events bus (the uplink's own: up and down),
+    /// behind whatever events are held for answers not yet out.
+    fn tell(&self, event: crate::events::Event) {
+        let _ = event;
+    }
+
     /// The whole `state` response, asked in `reporter`: a session the
     /// uplink keeps for its state topic, logged in here (with the
     /// vehicle's own password) when it must be.
@@ -131,7 +146,7 @@ pub const PACKET_ALLOWANCE: usize = 2048;
 /// for the broker to take the `offline` status.
 const STOP_GRACE: Duration = Duration::from_secs(3);
 
-/// How often idle sessions and old request ids are swept.
+/// How often idle sessions and old request ids are swept, at most.
 const SWEEP: Duration = Duration::from_secs(1);
 
 /// Requests the connection's own queue holds (answers, state, status,
@@ -221,11 +236,22 @@ impl Uplink {
             self.status.clone(),
             store,
         ));
+        // Subscribed before the connection starts: its `uplink` `up` is
+        // the first thing both hear of.
+        let told = shared.sessions.events();
+        let changes = shared.sessions.events();
         let mut tasks = vec![
-            tokio::spawn(state::publish(Arc::clone(&shared), self.settings.state_hz)),
+            tokio::spawn(state::publish(
+                Arc::clone(&shared),
+                self.settings.state_hz,
+                changes,
+            )),
             tokio::spawn(sweep(Arc::clone(&shared))),
             tokio::spawn(serve::send(Arc::clone(&shared))),
         ];
+        if let Some(told) = told {
+            tasks.push(tokio::spawn(events::publish(Arc::clone(&shared), told)));
+        }
         let workers: Vec<_> = (0..serve::WORKERS)
             .map(|_| tokio::spawn(serve::work(Arc::clone(&shared))))
             .collect();
@@ -240,19 +266,36 @@ impl Uplink {
         for task in tasks {
             task.abort();
         }
-        shared.status.set(Status::Down);
+        set_status(&shared, Status::Down);
     }
 }
 
 /// The store of answers and what it kept of the last window.
 pub type Store = (durable::Store, Vec<durable::Found>);
 
-/// Sweeps idle sessions and old request ids.
+/// Sweeps idle sessions and old request ids when one is due (at most once
+/// per [`SWEEP`]); sleeps while the table holds nothing, until a request
+/// comes.
 async fn sweep<S: Sessions>(shared: Arc<Shared<S>>) {
-    let mut tick = tokio::time::interval(SWEEP);
+    let mut earliest = tokio::time::Instant::now();
     loop {
-        tick.tick().await;
+        let changed = shared.changed.notified();
+        tokio::pin!(changed);
+        changed.as_mut().enable();
+        let due = shared.table().next_expiry().map(|at| {
+            let wait = Duration::from_millis(at.saturating_sub(shared.now()));
+            (tokio::time::Instant::now() + wait).max(earliest)
+        });
+        let Some(due) = due else {
+            changed.await;
+            continue;
+        };
+        tokio::select! {
+            () = tokio::time::sleep_until(due) => {}
+            () = changed => continue,
+        }
         shared.sweep();
+        earliest = tokio::time::Instant::now() + SWEEP;
     }
 }
 
@@ -307,7 +350,7 @@ async fn connection<S: Sessions>(
                 up_since = Some(Instant::now());
                 let max = connack.properties.and_then(|p| p.max_packet_size).unwrap_or(0);
                 shared.broker_max.store(max, Ordering::Relaxed);
-                if shared.status.set(Status::Up) != Status::Up {
+                if set_status(&shared, Status::Up) != Status::Up {
                     info!(%broker, vehicle = shared.topics.vehicle(), "uplink up");
                 }
                 tokio::spawn(announce(Arc::clone(&shared)));
@@ -319,7 +362,7 @@ async fn connection<S: Sessions>(
                 if *gone.borrow() {
                     return;
                 }
-                let was = shared.status.set(Status::Down);
+                let was = set_status(&shared, Status::Down);
                 if was == Status::Up || !tried {
                     warn!(%broker, error = %e, "uplink down; reconnecting with backoff (0.5 s to 30 s)");
                 }
@@ -336,6 +379,18 @@ async fn connection<S: Sessions>(
             }
         }
     }
+}
+
+/// Sets the link's state and tells a change between up and down on the
+/// events bus; returns the state it replaces.
+fn set_status<S: Sessions>(shared: &Shared<S>, status: Status) -> Status {
+    let was = shared.status.set(status);
+    if (was == Status::Up) != (status == Status::Up) {
+        shared.sessions.tell(crate::events::Event::Uplink {
+            up: status == Status::Up,
+        });
+    }
+    was
 }
 
 /// After every (re)connection: subscribe to this vehicle's requests and

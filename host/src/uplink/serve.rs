@@ -269,6 +269,8 @@ pub struct Shared<S> {
     /// Rate-limited log lines.
     pub notes: Notes,
     ready: Notify,
+    /// Told when the table may have something new to expire.
+    pub changed: Notify,
     keys: (RandomState, RandomState),
     start: Instant,
     window_ms: u64,
@@ -300,6 +302,7 @@ impl<S: Sessions> Shared<S> {
             stopping: AtomicBool::new(false),
             notes: Notes::default(),
             ready: Notify::new(),
+            changed: Notify::new(),
             keys: (RandomState::new(), RandomState::new()),
             start: Instant::now(),
             window_ms: limits.table.window_ms,
@@ -382,7 +385,10 @@ impl<S: Sessions> Shared<S> {
             exact(envelope::response(Some(&request.id), &response))
         };
         match admit {
-            Admit::Queued => self.ready.notify_one(),
+            Admit::Queued => {
+                self.ready.notify_one();
+                self.changed.notify_one();
+            }
             Admit::Copy => {}
             Admit::Ignored => self.notes.note(Trouble::Copies),
             Admit::Repeat(answer) => self.answer_now(client, answer),
@@ -528,6 +534,7 @@ async fn serve<S: Sessions>(shared: &Shared<S>, take: Take, out: &mut [u8]) {
         table.release(&client, &job, session);
         table.ended()
     };
+    shared.changed.notify_one();
     for session in ended {
         shared.sessions.close(session);
     }

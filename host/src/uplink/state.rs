@@ -1,5 +1,11 @@
 //! `lluav/V/state`: the whole `state` response, retained, at the
 //! configured rate and at once when `fsm`, `armed` or `link` change.
+//!
+//! Changes are learnt from the events bus (an `fsm`, `armed`, `link` or
+//! `uplink` event, or a gap), never by reading the state to compare: an
+//! idle vehicle costs the configured rate and nothing else (none at
+//! `--uplink-state-hz 0`). A burst of events is one read of the state,
+//! published only if what matters of it changed.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -7,15 +13,16 @@ use std::time::Duration;
 
 use rumqttc::v5::mqttbytes::QoS;
 use serde_json::Value;
-use tokio::time::{Instant, MissedTickBehavior, interval};
+use tokio::time::{Instant, sleep, sleep_until};
 
 use super::Sessions;
 use super::link::Status;
 use super::serve::Shared;
+use crate::events::{Event, Next, Subscriber};
 
-/// How often the state is read to see whether it changed: a change is
-/// published within this long.
-pub const WATCH: Duration = Duration::from_millis(100);
+/// How long to wait before asking again when `state` was refused (a login
+/// the throttle did not check, under attack).
+const RETRY: Duration = Duration::from_millis(250);
 
 /// What a change of which publishes the state at once.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -38,47 +45,149 @@ impl Salient {
     }
 }
 
+/// Why the state is looked at.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Wake {
+    /// Something that matters may have changed: published if it did.
+    Change,
+    /// The rate's time came: published whatever it says.
+    Period,
+    /// The bus is gone.
+    Closed,
+}
+
+/// Whether `event` may change what [`Salient`] holds (or, `uplink` up,
+/// makes a publication due: the broker has none from this connection).
+fn salient(event: &Event) -> bool {
+    matches!(
+        event,
+        Event::Fsm { .. } | Event::Armed { .. } | Event::Link { .. } | Event::Uplink { up: true }
+    )
+}
+
+/// Waits for an event that may change the state, then takes the rest of
+/// the burst already there; never returns without `events`.
+async fn change(events: &mut Option<Subscriber>) -> Wake {
+    let Some(sub) = events else {
+        return std::future::pending().await;
+    };
+    loop {
+        match sub.next().await {
+            Next::Event(e) if !salient(&e.event) => continue,
+            // Missed events may have been changes.
+            Next::Event(_) | Next::Gap(_) => break,
+            Next::Closed => return Wake::Closed,
+        }
+    }
+    while let Some(next) = sub.try_next() {
+        if next == Next::Closed {
+            return Wake::Closed;
+        }
+    }
+    Wake::Change
+}
+
+/// Sleeps until `at`, forever when `None`.
+async fn until(at: Option<Instant>) {
+    match at {
+        Some(at) => sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
 /// Publishes the state while the uplink runs: every `1/hz` seconds (never
-/// periodically when `hz` is 0), at once on a change, and at once after
-/// every (re)connection.
-pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64) {
+/// periodically when `hz` is 0), at once on a change `events` tells, and at
+/// once after every (re)connection.
+pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64, mut events: Option<Subscriber>) {
     let period = (hz > 0.0).then(|| Duration::from_secs_f64(1.0 / hz));
-    let mut tick = interval(WATCH.min(period.unwrap_or(WATCH)));
-    tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut out = vec![0u8; shared.response_capacity];
     // No client id is empty: no client shares this session's throttle key.
     let mut reporter = shared.sessions.open(None, shared.key(""));
     let mut last: Option<(Salient, Instant)> = None;
     loop {
-        let now = tick.tick().await;
-        if shared.stopping.load(Ordering::Relaxed) {
+        let up = shared.status.get() == Status::Up;
+        if !up {
+            last = None;
+        }
+        let due = match &last {
+            _ if !up => None,
+            None => Some(Instant::now()),
+            Some((_, at)) => period.map(|p| *at + p),
+        };
+        let wake = tokio::select! {
+            wake = change(&mut events) => wake,
+            () = until(due) => Wake::Period,
+            // A (re)connection, even without events.
+            () = shared.status.up(), if !up => Wake::Change,
+        };
+        if wake == Wake::Closed || shared.stopping.load(Ordering::Relaxed) {
             return;
         }
         if shared.status.get() != Status::Up {
-            last = None;
             continue;
         }
-        // A refusal (a login the throttle did not check, under attack) is
-        // no state: the last one stays retained.
-        let Some(response) = shared.sessions.state(&mut reporter, &mut out) else {
+        // A refusal is no state: the last one stays retained.
+        let Some((response, salient)) = read(&*shared.sessions, &mut reporter, &mut out) else {
+            sleep(RETRY).await;
             continue;
         };
-        let Some(salient) = Salient::of(&response) else {
-            continue;
-        };
-        // Half a watch early counts as on time: ticks jitter.
-        let due = match &last {
-            None => true,
-            Some((seen, at)) => *seen != salient || period.is_some_and(|p| now + WATCH / 2 >= *at + p),
-        };
-        if due {
+        let changed = last.as_ref().is_none_or(|(seen, _)| *seen != salient);
+        if wake == Wake::Period || changed {
             let topic = shared.topics.state().to_owned();
             // Fails only once the connection's task is gone (shutdown).
             let _ = shared
                 .client
                 .publish(topic, QoS::AtMostOnce, true, response)
                 .await;
-            last = Some((salient, now));
+            last = Some((salient, Instant::now()));
         }
+    }
+}
+
+/// The `state` response and what matters of it; `None` if refused.
+fn read<S: Sessions>(
+    sessions: &S,
+    reporter: &mut lluav_core::Session,
+    out: &mut [u8],
+) -> Option<(String, Salient)> {
+    let response = sessions.state(reporter, out)?;
+    let salient = Salient::of(&response)?;
+    Some((response, salient))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::events::Bus;
+
+    #[tokio::test]
+    async fn a_burst_of_events_is_one_change_and_other_events_none() {
+        let bus = Bus::new("b".into());
+        let mut events = Some(bus.subscribe());
+        bus.publish(Event::Battery { percent: 50.0 }, 1);
+        bus.publish(Event::Fsm { from: "a", to: "b" }, 2);
+        bus.publish(Event::Armed { armed: true }, 3);
+        bus.publish(Event::Fsm { from: "b", to: "c" }, 4);
+        assert_eq!(change(&mut events).await, Wake::Change);
+        bus.publish(Event::Battery { percent: 40.0 }, 5);
+        bus.publish(Event::Uplink { up: false }, 6);
+        let waiting = futures_util::FutureExt::now_or_never(change(&mut events));
+        assert_eq!(waiting, None, "neither the battery nor a down is a change");
+        bus.publish(Event::Uplink { up: true }, 7);
+        assert_eq!(change(&mut events).await, Wake::Change);
+    }
+
+    #[test]
+    fn what_matters_of_a_state_response() {
+        let s = Salient::of(r#"{"ret":0,"cmd":2,"state":{"fsm":"hover","armed":true,"link":"up"}}"#);
+        assert_eq!(
+            s,
+            Some(Salient {
+                fsm: Some("hover".into()),
+                armed: Some(true),
+                link: Some("up".into()),
+            })
+        );
+        assert_eq!(Salient::of(r#"{"ret":-1,"cmd":2,"msg":"no"}"#), None);
     }
 }

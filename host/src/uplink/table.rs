@@ -568,6 +568,26 @@ impl Table {
         });
     }
 
+    /// When [`Table::expire`] next has something to do, on the table's
+    /// clock: the oldest id's window ends, or an idle session's time is up
+    /// (a session out with a worker is due only once given back); `None`
+    /// when nothing is remembered and no session is held.
+    pub fn next_expiry(&self) -> Option<u64> {
+        let limits = self.limits;
+        let ids = self
+            .ids
+            .order
+            .front()
+            .map(|(at, _)| at.saturating_add(limits.window_ms));
+        let seats = self.seats.values().filter_map(|seat| match seat.slot {
+            _ if !seat.queue.is_empty() => None,
+            Slot::Idle(_) => Some(seat.last_request.saturating_add(limits.idle_ms)),
+            Slot::Empty => Some(seat.last_request),
+            Slot::Busy => None,
+        });
+        ids.into_iter().chain(seats).min()
+    }
+
     /// Sessions that ended in the table since the last call, to close.
     pub fn ended(&mut self) -> Vec<Session> {
         std::mem::take(&mut self.ended)
@@ -678,6 +698,22 @@ mod tests {
             Admit::Repeat(_)
         ));
         assert_eq!(t.request("c", "1", "state", 1000, None), Admit::Queued);
+    }
+
+    #[test]
+    fn nothing_is_due_in_an_empty_table_and_the_earliest_expiry_otherwise() {
+        let mut t = Table::new(small());
+        assert_eq!(t.next_expiry(), None);
+        assert_eq!(t.request("c", "1", "state", 100, None), Admit::Queued);
+        // Queued: the session is not idle, the id's window is due.
+        assert_eq!(t.next_expiry(), Some(1100));
+        run_all(&mut t, 100);
+        assert_eq!(t.next_expiry(), Some(600), "the idle session first");
+        t.expire(600);
+        assert_eq!(t.ended().len(), 1);
+        assert_eq!(t.next_expiry(), Some(1100));
+        t.expire(1100);
+        assert_eq!(t.next_expiry(), None, "all forgotten");
     }
 
     #[test]

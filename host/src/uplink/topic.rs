@@ -1,5 +1,5 @@
 //! The topic layout (DESIGN.md, "Uplink"): `lluav/V/status`, `lluav/V/state`,
-//! `lluav/V/req/C` and `lluav/V/res/C`, with `V` a vehicle id and `C` an
+//! `lluav/V/events`, `lluav/V/req/C` and `lluav/V/res/C`, with `V` a vehicle id and `C` an
 //! operator's client id, both 1-64 of `[A-Za-z0-9_-]`.
 
 /// Longest vehicle or client id.
@@ -45,6 +45,7 @@ pub struct Topics {
     vehicle: String,
     status: String,
     state: String,
+    events: String,
     requests: String,
 }
 
@@ -77,6 +78,7 @@ impl Topics {
             vehicle: vehicle.to_owned(),
             status: format!("{ROOT}/{vehicle}/status"),
             state: format!("{ROOT}/{vehicle}/state"),
+            events: format!("{ROOT}/{vehicle}/events"),
             requests: format!("{ROOT}/{vehicle}/req/"),
         }
     }
@@ -94,6 +96,11 @@ impl Topics {
     /// `lluav/V/state`.
     pub fn state(&self) -> &str {
         &self.state
+    }
+
+    /// `lluav/V/events`.
+    pub fn events(&self) -> &str {
+        &self.events
     }
 
     /// `lluav/V/req/+`: what the vehicle subscribes to.
@@ -165,6 +172,7 @@ mod tests {
         assert_eq!(t.client_of("lluav/v1/req/"), Err(Stray::ClientId));
         assert_eq!(t.response("op-1"), "lluav/v1/res/op-1");
         assert_eq!(t.request_filter(), "lluav/v1/req/+");
+        assert_eq!(t.events(), "lluav/v1/events");
         assert_eq!(split_vehicle("lluav/v1/res/op"), Some(("v1", "res/op")));
         assert_eq!(split_vehicle("other/v1/state"), None);
     }
