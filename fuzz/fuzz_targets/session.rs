@@ -135,13 +135,21 @@ impl Backend for Vehicle {
         let b = self.before.expect("execute runs only inside a message");
         let flags = cmd.id().spec().flags;
         assert!(!b.gated, "{:?} ran before login", cmd.id());
-        assert!(!(b.armed && !flags.run_on_arm()), "{:?} ran while armed", cmd.id());
+        assert!(
+            !(b.armed && !flags.run_on_arm()),
+            "{:?} ran while armed",
+            cmd.id()
+        );
         assert!(
             !(b.locked && !b.admin() && !flags.run_in_lock()),
             "{:?} ran in lock mode",
             cmd.id()
         );
-        assert!(!flags.admin_only() || b.admin(), "{:?} ran without admin", cmd.id());
+        assert!(
+            !flags.admin_only() || b.admin(),
+            "{:?} ran without admin",
+            cmd.id()
+        );
         assert_eq!(
             (ctx.role, ctx.lock_mode, ctx.session, ctx.now_ms),
             (b.role, b.locked, b.session, b.now)
