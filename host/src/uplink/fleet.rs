@@ -49,6 +49,9 @@ pub const LISTING_WAIT: Duration = Duration::from_secs(1);
 /// once none came for this long, the listing is complete.
 const LISTING_QUIET: Duration = Duration::from_millis(150);
 
+/// How long [`Fleet::events`] waits for its subscription's grant at most.
+const SUBSCRIBE_WAIT: Duration = Duration::from_secs(5);
+
 /// How a [`Fleet`] connects.
 #[derive(Clone, Debug, Default)]
 pub struct FleetOptions {
@@ -197,6 +200,10 @@ struct Inner {
     /// The events filter subscribed to by [`Fleet::events`], and where its
     /// events go: `(vehicle, event)`.
     events: Option<(String, tokio::sync::mpsc::UnboundedSender<(String, Value)>)>,
+    /// Subscribe requests sent and granted (the broker answers them in
+    /// order): [`Fleet::events`] returns once its own is granted.
+    subscribes: u64,
+    granted_count: u64,
 }
 
 /// Vehicles reached through one broker connection.
@@ -268,7 +275,10 @@ impl Fleet {
             .subscribe_many(filters(&client_id))
             .await
             .map_err(|e| FleetError::Lost(e.to_string()))?;
-        let inner = Arc::new(Mutex::new(Inner::default()));
+        let inner = Arc::new(Mutex::new(Inner {
+            subscribes: 1,
+            ..Inner::default()
+        }));
         let task = tokio::spawn(follow(
             events,
             client.clone(),
@@ -402,7 +412,11 @@ impl Fleet {
             None => topic::every_vehicle("events"),
         };
         let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
-        let old = self.inner().events.replace((filter.clone(), tx));
+        let (old, mine) = {
+            let mut inner = self.inner();
+            inner.subscribes += 1;
+            (inner.events.replace((filter.clone(), tx)), inner.subscribes)
+        };
         if let Some((old, _)) = old
             && old != filter
         {
@@ -412,6 +426,12 @@ impl Fleet {
             .subscribe(filter, QoS::AtLeastOnce)
             .await
             .map_err(|e| FleetError::Lost(e.to_string()))?;
+        // Events published once this returns are delivered: wait for the
+        // grant (bounded: a broker that never grants still gets us going).
+        let start = Instant::now();
+        while self.inner().granted_count < mine && start.elapsed() < SUBSCRIBE_WAIT {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
         Ok(rx)
     }
 
@@ -466,11 +486,16 @@ async fn follow(mut events: EventLoop, client: AsyncClient, client_id: String, i
     loop {
         match events.poll().await {
             Ok(Event::Incoming(Packet::Publish(p))) => heard(&inner, &p),
-            Ok(Event::Incoming(Packet::SubAck(_))) => lock(&inner).granted = Some(Instant::now()),
+            Ok(Event::Incoming(Packet::SubAck(_))) => {
+                let mut inner = lock(&inner);
+                inner.granted = Some(Instant::now());
+                inner.granted_count += 1;
+            }
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
                 let events = {
                     let mut inner = lock(&inner);
                     inner.down = None;
+                    inner.subscribes += 1;
                     inner.events.as_ref().map(|(filter, _)| filter.clone())
                 };
                 backoff.reset();
