@@ -120,15 +120,16 @@ pub fn event_line(event: &Map<String, Value>) -> String {
 }
 
 /// A field's value in an event line: a plain word as it is, any other
-/// string quoted (so `by="ws 127.0.0.1:4242 #3"` reads as one value), the
-/// rest as JSON.
+/// string quoted as JSON (so `by="ws 127.0.0.1:4242 #3"` reads as one
+/// value, and a control character shows escaped inside quotes), the rest
+/// as JSON.
 fn shown(value: &Value) -> String {
     match value {
         Value::String(s)
             if !s.is_empty()
                 && !s
                     .chars()
-                    .any(|c| c.is_whitespace() || matches!(c, '"' | '=' | '\\')) =>
+                    .any(|c| c.is_whitespace() || unsafe_char(c) || matches!(c, '"' | '=' | '\\')) =>
         {
             s.clone()
         }
