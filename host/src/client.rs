@@ -11,6 +11,10 @@
 //! certificate is checked against the system's roots, or against the CA
 //! file of [`ConnectOptions::ca_file`] (a self-signed certificate).
 //!
+//! [`Events`] follows a server's `/events` stream (DESIGN.md, "Events"):
+//! what happened to the vehicle, pushed as it happens, on a connection of
+//! its own beside the command socket.
+//!
 //! ```no_run
 //! # async fn demo() -> Result<(), lluav_host::client::ClientError> {
 //! use lluav_host::client::Client;
@@ -141,6 +145,14 @@ pub enum ClientError {
     /// A frame the client was asked to send does not parse.
     #[error("{0}")]
     Parse(String),
+    /// The server sent something that is not an event on `/events`.
+    #[error("not an event ({why}): {text}")]
+    BadEvent {
+        /// What was received (cut to its first 200 characters).
+        text: String,
+        /// Why it is not an event.
+        why: String,
+    },
     /// The command ran and failed (`ret < 0`); see [`Response::check`].
     #[error("{} failed: ret {}{}", command_name(.0), .0.ret, .0.msg().map(|m| format!(": {m}")).unwrap_or_default())]
     Failed(Box<Response>),
@@ -453,6 +465,152 @@ impl Client {
                 }
                 WsMessage::Binary(_) | WsMessage::Ping(_) | WsMessage::Pong(_) | WsMessage::Frame(_) => {}
             }
+        }
+    }
+}
+
+/// The `/events` URL of the server at `url` (DESIGN.md, "Events": the same
+/// port and scheme as the command socket): `ws://host:53001` gives
+/// `ws://host:53001/events`; a path is kept (`wss://proxy/drone-1/` gives
+/// `wss://proxy/drone-1/events`), a query or fragment is dropped.
+pub fn events_url(url: &str) -> String {
+    let url = url.split(['?', '#']).next().unwrap_or_default();
+    // After the scheme's `//`, the path starts at the first `/`, if any.
+    let authority = url.find("//").map_or(0, |i| i + 2);
+    let base = match url.get(authority..).and_then(|rest| rest.find('/')) {
+        Some(_) => url.trim_end_matches('/'),
+        None => url,
+    };
+    format!("{base}/events")
+}
+
+/// A subscription to a server's events: `/events`, logged in when the
+/// server has a password (DESIGN.md, "Events").
+///
+/// Each event is a JSON object, `{"event":"<name>","seq":N,"boot":"<id>",
+/// "ts":ms, ...}`; a subscriber that fell behind gets `{"event":"gap",
+/// "missed":N,"ts":ms}` instead of the events it missed. The stream never
+/// ends by itself: [`Events::next`] fails when the connection does.
+///
+/// ```no_run
+/// # async fn demo() -> Result<(), lluav_host::client::ClientError> {
+/// use lluav_host::client::{ConnectOptions, Events};
+/// let mut events = Events::subscribe("ws://127.0.0.1:53001", &ConnectOptions::default(), Some("s3cret")).await?;
+/// loop {
+///     let event = events.next().await?;
+///     println!("{} {}", event["event"], serde_json::Value::Object(event.clone()));
+/// }
+/// # }
+/// ```
+pub struct Events {
+    ws: WebSocketStream<Transport>,
+}
+
+impl Events {
+    /// How long the stream may be silent before it counts as lost: the
+    /// server pings every subscriber every 10 s, so a connection that
+    /// brings nothing for this long is gone (a cable pulled, a NAT that
+    /// forgot it) even when TCP has not noticed.
+    pub const SILENCE: std::time::Duration = std::time::Duration::from_secs(30);
+
+    /// Connects to the `/events` of the server at `url` (the command
+    /// socket's URL, see [`events_url`]) and, with a `password`, logs in: a
+    /// refused login is [`ClientError::Failed`] with the server's answer
+    /// (a wrong password counts as one, as on the command socket).
+    pub async fn subscribe(
+        url: &str,
+        options: &ConnectOptions,
+        password: Option<&str>,
+    ) -> Result<Events, ClientError> {
+        let mut client = Client::connect_with(&events_url(url), options).await?;
+        if let Some(password) = password {
+            // The login is answered before any event: the server
+            // subscribes the session only once it is logged in.
+            client.login(password).await?.check()?;
+        }
+        Ok(Events { ws: client.ws })
+    }
+
+    /// The next event (or gap) as its JSON object. Fails when the server
+    /// closes the stream ([`ClientError::Closed`]: 1001 when lluavd stops,
+    /// 1008 when a login was due and none came), when the connection
+    /// breaks or stays silent for [`Events::SILENCE`]
+    /// ([`ClientError::Transport`]), or when a message is not a JSON object
+    /// ([`ClientError::BadEvent`]).
+    pub async fn next(&mut self) -> Result<Map<String, Value>, ClientError> {
+        use tokio_tungstenite::tungstenite::Error as WsError;
+        loop {
+            let message = match tokio::time::timeout(Events::SILENCE, self.ws.next()).await {
+                Err(_) => {
+                    let why = format!(
+                        "no word from the server for {} s (it pings every 10 s)",
+                        Events::SILENCE.as_secs()
+                    );
+                    let timed_out = std::io::Error::new(std::io::ErrorKind::TimedOut, why);
+                    return Err(ClientError::Transport(Box::new(WsError::Io(timed_out))));
+                }
+                Ok(Some(Ok(m))) => m,
+                Ok(Some(Err(e))) => return Err(ClientError::Transport(Box::new(e))),
+                Ok(None) => {
+                    return Err(ClientError::Closed {
+                        code: None,
+                        reason: String::new(),
+                    });
+                }
+            };
+            match message {
+                WsMessage::Text(text) => {
+                    return serde_json::from_str(text.as_str()).map_err(|e| ClientError::BadEvent {
+                        text: text.as_str().chars().take(200).collect(),
+                        why: e.to_string(),
+                    });
+                }
+                WsMessage::Binary(bytes) => {
+                    return Err(ClientError::BadEvent {
+                        text: format!("<{} bytes>", bytes.len()),
+                        why: "a binary message".into(),
+                    });
+                }
+                WsMessage::Close(frame) => {
+                    return Err(ClientError::Closed {
+                        code: frame.as_ref().map(|f| u16::from(f.code)),
+                        reason: frame.map(|f| f.reason.as_str().to_owned()).unwrap_or_default(),
+                    });
+                }
+                // Pings are answered by tungstenite while it reads.
+                WsMessage::Ping(_) | WsMessage::Pong(_) | WsMessage::Frame(_) => {}
+            }
+        }
+    }
+
+    /// Closes the stream cleanly (the WebSocket closing handshake).
+    pub async fn close(mut self) -> Result<(), ClientError> {
+        self.ws
+            .close(None)
+            .await
+            .map_err(|e| ClientError::Transport(Box::new(e)))?;
+        while let Some(Ok(_)) = self.ws.next().await {}
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::events_url;
+
+    #[test]
+    fn the_events_url_is_the_servers_with_events_for_its_path() {
+        for (server, events) in [
+            ("ws://127.0.0.1:53001", "ws://127.0.0.1:53001/events"),
+            ("ws://127.0.0.1:53001/", "ws://127.0.0.1:53001/events"),
+            ("wss://[::1]:53001", "wss://[::1]:53001/events"),
+            (
+                "wss://proxy.example/drone-1/",
+                "wss://proxy.example/drone-1/events",
+            ),
+            ("ws://h:1/?x=1#y", "ws://h:1/events"),
+        ] {
+            assert_eq!(events_url(server), events, "{server}");
         }
     }
 }

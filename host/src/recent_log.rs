@@ -133,8 +133,9 @@ impl Visit for LineVisitor {
     }
 }
 
-/// Writes `t` as `YYYY-MM-DDTHH:MM:SS.mmmZ`.
-fn write_utc(out: &mut String, t: SystemTime) {
+/// Writes `t` as `YYYY-MM-DDTHH:MM:SS.mmmZ` (also the time of `lluav
+/// events` lines).
+pub(crate) fn write_utc(out: &mut String, t: SystemTime) {
     let since = t.duration_since(UNIX_EPOCH).unwrap_or_default();
     let secs = since.as_secs();
     let (days, rem) = (secs / 86_400, secs % 86_400);

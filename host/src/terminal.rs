@@ -10,6 +10,9 @@
 
 use std::borrow::Cow;
 use std::fmt::Write as _;
+use std::time::{Duration, UNIX_EPOCH};
+
+use serde_json::{Map, Value};
 
 /// The Unicode format characters (general category Cf, Unicode 16), as
 /// `(first, last)`: the same set core refuses in names and stored text.
@@ -70,6 +73,70 @@ pub fn escape_lines(text: &str) -> String {
     text.split('\n').map(escape).collect::<Vec<_>>().join("\n")
 }
 
+/// `value` as one line of compact JSON that is safe on a terminal: the
+/// same value (escapes are only added inside strings).
+pub fn json_line(value: &Value) -> String {
+    escape(&value.to_string()).into_owned()
+}
+
+/// `ms` since the Unix epoch as `YYYY-MM-DDTHH:MM:SS.mmmZ` (UTC, as the
+/// daemon's log writes time).
+pub fn utc(ms: i64) -> String {
+    let t = UNIX_EPOCH + Duration::from_millis(u64::try_from(ms).unwrap_or(0));
+    let mut out = String::new();
+    crate::recent_log::write_utc(&mut out, t);
+    out
+}
+
+/// The members every event has, shown in the line's own columns.
+const COMMON: [&str; 4] = ["event", "seq", "boot", "ts"];
+
+/// One event (or gap, DESIGN.md "Events") as a line for a person: its
+/// time, `seq` and name, then its own fields as `key=value` in the order
+/// the server sent them, e.g. `2025-05-01T14:03:07.123Z #12 fsm
+/// from=disarmed to=takeoff`. Events this client does not know are shown
+/// the same way; the line is [`escape`]d.
+pub fn event_line(event: &Map<String, Value>) -> String {
+    let time = event
+        .get("ts")
+        .and_then(Value::as_i64)
+        .map_or_else(|| "-".to_owned(), utc);
+    let name = match event.get("event") {
+        Some(Value::String(s)) => s.clone(),
+        other => other.map_or_else(|| "?".to_owned(), Value::to_string),
+    };
+    let mut line = time;
+    if let Some(seq) = event.get("seq") {
+        let _ = write!(line, " #{seq}");
+    }
+    let _ = write!(line, " {name}");
+    for (key, value) in event.iter().filter(|(k, _)| !COMMON.contains(&k.as_str())) {
+        let _ = write!(line, " {key}={}", shown(value));
+    }
+    if name == "gap" {
+        line.push_str(" (events dropped: this client fell behind)");
+    }
+    escape(&line).into_owned()
+}
+
+/// A field's value in an event line: a plain word as it is, any other
+/// string quoted as JSON (so `by="ws 127.0.0.1:4242 #3"` reads as one
+/// value, and a control character shows escaped inside quotes), the rest
+/// as JSON.
+fn shown(value: &Value) -> String {
+    match value {
+        Value::String(s)
+            if !s.is_empty()
+                && !s
+                    .chars()
+                    .any(|c| c.is_whitespace() || unsafe_char(c) || matches!(c, '"' | '=' | '\\')) =>
+        {
+            s.clone()
+        }
+        other => other.to_string(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -99,5 +166,53 @@ mod tests {
         assert!(!escaped.chars().any(unsafe_char), "{escaped}");
         let back: serde_json::Value = serde_json::from_str(&escaped).expect("still JSON");
         assert_eq!(back, value);
+    }
+
+    fn object(v: serde_json::Value) -> Map<String, Value> {
+        match v {
+            Value::Object(m) => m,
+            _ => panic!("not an object"),
+        }
+    }
+
+    #[test]
+    fn event_lines_show_time_seq_name_and_fields_in_order() {
+        use serde_json::json;
+        let e = object(
+            json!({"event": "fsm", "seq": 12, "boot": "ab", "ts": 1_746_108_187_123_i64,
+            "from": "disarmed", "to": "takeoff"}),
+        );
+        assert_eq!(
+            event_line(&e),
+            "2025-05-01T14:03:07.123Z #12 fsm from=disarmed to=takeoff"
+        );
+        let e = object(json!({"event": "control", "seq": 3, "boot": "ab", "ts": 0,
+            "by": "ws 127.0.0.1:4242 #3", "from": null}));
+        assert_eq!(
+            event_line(&e),
+            r#"1970-01-01T00:00:00.000Z #3 control by="ws 127.0.0.1:4242 #3" from=null"#
+        );
+        let e = object(json!({"event": "gap", "missed": 12, "ts": 0}));
+        assert_eq!(
+            event_line(&e),
+            "1970-01-01T00:00:00.000Z gap missed=12 (events dropped: this client fell behind)"
+        );
+        let e =
+            object(json!({"event": "log", "seq": 4, "ts": 0, "level": "warning", "msg": "\u{1b}[31mred"}));
+        assert_eq!(
+            event_line(&e),
+            r#"1970-01-01T00:00:00.000Z #4 log level=warning msg="\u001b[31mred""#
+        );
+        let e = object(json!({"event": 7, "seq": 6, "ts": 0, "new": {"a": [1]}}));
+        assert!(
+            event_line(&e).ends_with(r#"#6 7 new={"a":[1]}"#),
+            "{}",
+            event_line(&e)
+        );
+        let v = json!({"event": "log", "msg": "\u{1b}]0;owned\u{7}\u{9b}\u{202e}", "n": 1});
+        let line = json_line(&v);
+        assert!(!line.chars().any(unsafe_char), "{line}");
+        assert_eq!(serde_json::from_str::<Value>(&line).expect("JSON"), v);
+        assert!(line.starts_with(r#"{"event":"log","msg":"#), "{line}");
     }
 }

@@ -14,6 +14,10 @@ package cannot disagree with a server about a command.
   method per command, named and typed after the table, plus ``call(frame)``.
 - :class:`Fleet` and :class:`AsyncFleet`: vehicles through an MQTT broker
   (lluavd's uplink); ``fleet.vehicle(V)`` has the same methods.
+- Events (what happened, pushed as it happens): ``client.events()``,
+  ``fleet.events(vehicle=None)`` iterate over them as dicts
+  (:class:`Events`, :class:`AsyncEvents`, :class:`FleetEvents`,
+  :class:`AsyncFleetEvents`).
 - :func:`parse`: a frame read exactly as the server reads it; :func:`encode`:
   the frame a method would send.
 - :data:`COMMANDS`: the command table, in id order.
@@ -30,6 +34,7 @@ from ._core import TABLE, Command, Param, Spec
 from ._core import encode as _encode
 from ._core import parse as _parse
 from ._errors import CommandError, ConnectionError, Error, InvalidArguments, UnknownCommand
+from ._events import AsyncEvents, AsyncFleetEvents, Events, FleetEvents
 from ._fleet import AsyncFleet, AsyncFleetVehicle, Fleet, FleetVehicle
 from ._sync import DEFAULT_URL, Client
 
@@ -68,14 +73,18 @@ __all__ = [
     "COMMANDS",
     "DEFAULT_URL",
     "AsyncClient",
+    "AsyncEvents",
     "AsyncFleet",
+    "AsyncFleetEvents",
     "AsyncFleetVehicle",
     "Client",
     "Command",
     "CommandError",
     "ConnectionError",
     "Error",
+    "Events",
     "Fleet",
+    "FleetEvents",
     "FleetVehicle",
     "InvalidArguments",
     "Param",

@@ -16,12 +16,17 @@ package cannot disagree with a server about a command.
   method per command, named and typed after the table, plus ``call(frame)``.
 - :class:`Fleet` and :class:`AsyncFleet`: vehicles through an MQTT broker
   (lluavd's uplink); ``fleet.vehicle(V)`` has the same methods.
+- Events (what happened, pushed as it happens): ``client.events()``,
+  ``fleet.events(vehicle=None)`` iterate over them as dicts
+  (:class:`Events`, :class:`AsyncEvents`, :class:`FleetEvents`,
+  :class:`AsyncFleetEvents`).
 - :func:`parse`: a frame read exactly as the server reads it; :func:`encode`:
   the frame a method would send.
 - :data:`COMMANDS`: the command table, in id order.
 - Errors: :class:`Error` and its subclasses :class:`InvalidArguments`,
   :class:`UnknownCommand`, :class:`CommandError`, :class:`ConnectionError`."""
 import builtins
+import ssl
 from collections.abc import Sequence
 from types import TracebackType
 from typing import Any, Final
@@ -30,7 +35,7 @@ from ._core import Command as Command
 from ._core import Param as Param
 from ._core import Spec as Spec
 
-__all__ = ['AsyncClient', 'AsyncFleet', 'AsyncFleetVehicle', 'COMMANDS', 'Client', 'Command', 'CommandError', 'ConnectionError', 'DEFAULT_URL', 'Error', 'Fleet', 'FleetVehicle', 'InvalidArguments', 'Param', 'Spec', 'UnknownCommand', 'encode', 'parse']
+__all__ = ['AsyncClient', 'AsyncEvents', 'AsyncFleet', 'AsyncFleetEvents', 'AsyncFleetVehicle', 'COMMANDS', 'Client', 'Command', 'CommandError', 'ConnectionError', 'DEFAULT_URL', 'Error', 'Events', 'Fleet', 'FleetEvents', 'FleetVehicle', 'InvalidArguments', 'Param', 'Spec', 'UnknownCommand', 'encode', 'parse']
 
 DEFAULT_URL: Final[str]
 COMMANDS: Final[tuple[Spec, ...]]
@@ -106,6 +111,12 @@ class Client:
     def call(self, frame: str) -> dict[str, Any]:
         """Sends any frame (``"set_sp_ned 1:2:-3:0"``) as it is and returns
         the response; the server, not the SDK, decides whether it is valid."""
+    def events(self, timeout: float | None = None) -> Events:
+        """Subscribes to the server's events (``/events``, on a connection
+        of its own, logged in with this client's password) and returns them
+        as an iterator of dicts: ``for event in c.events(): ...``.
+        ``timeout``: seconds to wait for each event (TimeoutError), or None
+        to wait as long as it takes. See :class:`lluav.Events`."""
     def close(self) -> None:
         """Closes the connection (the WebSocket closing handshake). Idempotent."""
     @property
@@ -993,6 +1004,13 @@ class AsyncClient:
     async def call(self, frame: str) -> dict[str, Any]:
         """Sends any frame (``"set_sp_ned 1:2:-3:0"``) as it is and returns
         the response; the server, not the SDK, decides whether it is valid."""
+    def events(self, timeout: float | None = None) -> AsyncEvents:
+        """The server's events (``/events``, on a connection of its own,
+        logged in with this client's password) as an async iterator of
+        dicts: ``async with c.events() as events: async for event in
+        events: ...`` (subscribed when the ``async with`` block starts).
+        ``timeout``: seconds to wait for each event (TimeoutError), or None.
+        See :class:`lluav.AsyncEvents`."""
     async def close(self) -> None:
         """Closes the connection (the WebSocket closing handshake); requests
         still in flight fail with ConnectionError. Idempotent."""
@@ -2759,6 +2777,12 @@ class Fleet:
     def vehicle(self, vehicle: str, password: str | None = None) -> FleetVehicle:
         """The vehicle called ``vehicle``; logs in first when ``password``
         is given (a refused login raises CommandError)."""
+    def events(self, vehicle: str | None = None, timeout: float | None = None) -> FleetEvents:
+        """Follows the events of ``vehicle``, or of every vehicle (from
+        ``lluav/+/events``): an iterator of dicts, each with
+        ``"vehicle"`` added; subscribed (granted) when this returns.
+        ``timeout``: seconds to wait for each event (TimeoutError), or None.
+        See :class:`lluav.FleetEvents`."""
     def close(self) -> None:
         """Disconnects from the broker. Idempotent."""
     @property
@@ -3660,12 +3684,108 @@ class AsyncFleet:
     async def vehicle(self, vehicle: str, password: str | None = None) -> AsyncFleetVehicle:
         """The vehicle called ``vehicle``; logs in first when ``password``
         is given (a refused login raises CommandError)."""
+    async def events(self, vehicle: str | None = None, timeout: float | None = None) -> AsyncFleetEvents:
+        """As :meth:`Fleet.events`, an async iterator: ``async for event in
+        await fleet.events()``; subscribed (granted) when this returns."""
     async def close(self) -> None:
         """Disconnects from the broker. Idempotent."""
     @property
     def closed(self) -> bool:
         """Whether the fleet is closed or not yet connected."""
     async def __aenter__(self) -> AsyncFleet: ...
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+class Events:
+    """The events of one server, as dicts (``{"event": "fsm", "seq": 3,
+    "boot": "...", "ts": ms, "from": "takeoff", "to": "hover"}``; a
+    subscriber that fell behind gets ``{"event": "gap", "missed": N, "ts":
+    ms}``), from :meth:`lluav.Client.events`.
+
+    Subscribed once this is made (logged in first when the client has a
+    password): every event after that comes. Iterate to get them; the
+    iteration ends after :meth:`close`, and raises ConnectionError when the
+    connection ends or fails, TimeoutError when ``timeout`` seconds pass
+    without an event."""
+    url: str
+    timeout: float | None
+    def __init__(
+        self,
+        url: str,
+        password: str | None,
+        ssl: ssl.SSLContext | None,
+        open_timeout: float,
+        timeout: float | None,
+    ) -> None: ...
+    def __iter__(self) -> Events: ...
+    def __next__(self) -> dict[str, Any]: ...
+    def close(self) -> None:
+        """Closes the stream (the WebSocket closing handshake). Idempotent."""
+    def __enter__(self) -> Events: ...
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+class AsyncEvents:
+    """:class:`Events` on asyncio, from :meth:`lluav.AsyncClient.events`:
+    ``async with client.events() as events:`` subscribes (so does ``await
+    events.connect()``, or the first ``async for``), then ``async for event
+    in events``."""
+    url: str
+    timeout: float | None
+    def __init__(
+        self,
+        url: str,
+        password: str | None,
+        ssl: ssl.SSLContext | None,
+        open_timeout: float,
+        timeout: float | None,
+    ) -> None: ...
+    async def connect(self) -> AsyncEvents:
+        """Subscribes (logged in first with a password). Idempotent."""
+    def __aiter__(self) -> AsyncEvents: ...
+    async def __anext__(self) -> dict[str, Any]: ...
+    async def close(self) -> None:
+        """Closes the stream (the WebSocket closing handshake). Idempotent."""
+    async def __aenter__(self) -> AsyncEvents: ...
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+class FleetEvents:
+    """The events of every vehicle, or of one, through a broker
+    (``lluav/+/events``, the vehicle picked out here), from
+    :meth:`lluav.Fleet.events`: dicts as :class:`Events` gives them, with
+    ``"vehicle"`` added (the vehicle's id).
+
+    Subscribed once this is made (the broker granted it). The broker
+    connection comes back by itself when lost; what was published while it
+    was down does not come (``seq`` shows the hole). The iteration ends
+    after :meth:`close` or the fleet's close, and raises TimeoutError when
+    ``timeout`` seconds pass without an event."""
+    vehicle: str | None
+    timeout: float | None
+    def __init__(self, link: Any, vehicle: str | None, timeout: float | None) -> None: ...
+    def __iter__(self) -> FleetEvents: ...
+    def __next__(self) -> dict[str, Any]: ...
+    def close(self) -> None:
+        """Stops following (the iteration ends). Idempotent."""
+    def __enter__(self) -> FleetEvents: ...
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+class AsyncFleetEvents:
+    """:class:`FleetEvents` on asyncio, from :meth:`lluav.AsyncFleet.events`:
+    ``async for event in await fleet.events()``."""
+    vehicle: str | None
+    timeout: float | None
+    def __init__(self, link: Any, vehicle: str | None, timeout: float | None) -> None: ...
+    def __aiter__(self) -> AsyncFleetEvents: ...
+    async def __anext__(self) -> dict[str, Any]: ...
+    async def close(self) -> None:
+        """Stops following (the iteration ends). Idempotent."""
+    async def __aenter__(self) -> AsyncFleetEvents: ...
     async def __aexit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None: ...

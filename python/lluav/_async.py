@@ -14,6 +14,7 @@ from websockets.protocol import State
 
 from . import _core, _methods, _tls
 from ._errors import ConnectionError
+from ._events import AsyncEvents
 from ._response import check
 from ._sync import DEFAULT_URL
 
@@ -218,6 +219,15 @@ class AsyncClient:
         if not isinstance(frame, str):
             raise TypeError(f"a frame is a str, not {type(frame).__name__}")
         return await self._request(frame, _core.command_id(frame))
+
+    def events(self, timeout: float | None = None) -> AsyncEvents:
+        """The server's events (``/events``, on a connection of its own,
+        logged in with this client's password) as an async iterator of
+        dicts: ``async with c.events() as events: async for event in
+        events: ...`` (subscribed when the ``async with`` block starts).
+        ``timeout``: seconds to wait for each event (TimeoutError), or None.
+        See :class:`lluav.AsyncEvents`."""
+        return AsyncEvents(self.url, self._password, self._ssl, self.timeout, timeout)
 
     async def close(self) -> None:
         """Closes the connection (the WebSocket closing handshake); requests

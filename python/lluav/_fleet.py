@@ -31,6 +31,7 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 from . import _core, _methods
 from ._async import _make as _make_async
 from ._errors import ConnectionError
+from ._events import AsyncFleetEvents, FleetEvent, FleetEvents
 from ._response import check_response
 from ._sync import _make as _make_sync
 
@@ -113,6 +114,7 @@ class _Link:
             raise ValueError(f"cafile is for mqtts:// URLs, not {url!r}")
         self.client_id = _name("client id", client_id) if client_id is not None else _default_client_id(username)
         self.url = url
+        self._timeout = timeout
         self._lock = threading.Lock()
         self._waiting: dict[str, Deliver] = {}
         self._heard: dict[str, dict[str, Any]] = {}
@@ -123,6 +125,13 @@ class _Link:
         self._nonce = secrets.token_hex(4)
         self._connected = threading.Event()
         self._refused: str | None = None
+        # Events followers: sink id to (vehicle or None, put); the topics
+        # subscribed for them; subscriptions granted, by message id.
+        self._sinks: dict[int, tuple[str | None, Callable[[FleetEvent], None]]] = {}
+        self._sink_ids = count()
+        self._event_topics: set[str] = set()
+        self._granted_mids: set[int] = set()
+        self._grant = threading.Condition(self._lock)
         client = mqtt.Client(
             mqtt.CallbackAPIVersion.VERSION2,
             client_id=self.client_id,
@@ -172,15 +181,19 @@ class _Link:
             self._down = None
         # Clean start: subscribe on every connection.
         topics = [f"lluav/+/res/{self.client_id}", "lluav/+/status", "lluav/+/state"]
+        with self._lock:
+            topics += sorted(self._event_topics)
         client.subscribe([(t, SubscribeOptions(qos=1)) for t in topics])
         self._connected.set()
 
     def _on_disconnect(self, _c: Any, _u: Any, _f: Any, reason: Any, _p: Any) -> None:
         self._fail_all(f"the connection to the broker was lost ({reason})")
 
-    def _on_subscribe(self, *_args: Any) -> None:
+    def _on_subscribe(self, _c: Any, _u: Any, mid: int, *_args: Any) -> None:
         with self._lock:
             self._granted = time.monotonic()
+            self._granted_mids.add(mid)
+            self._grant.notify_all()
 
     def _on_message(self, _c: Any, _u: Any, message: mqtt.MQTTMessage) -> None:
         parts = message.topic.split("/")
@@ -196,6 +209,12 @@ class _Link:
                 self._heard.setdefault(vehicle, {})["online"] = value.get("online") is True
             elif kind == "state" and isinstance(value, dict):
                 self._heard.setdefault(vehicle, {})["state"] = value
+            elif kind == "events" and isinstance(value, dict):
+                sinks = list(self._sinks.values())
+                for only, put in sinks:
+                    if only is None or only == vehicle:
+                        put((vehicle, value))
+                return
             elif kind.startswith("res/") and isinstance(value, dict):
                 deliver = self._waiting.pop(str(value.get("id")), None)
                 if deliver is not None:
@@ -262,10 +281,41 @@ class _Link:
             listing[vehicle] = {"online": heard[vehicle].get("online") is True, "state": state, "age_s": age}
         return listing
 
+    def follow_events(self, vehicle: str | None, put: Callable[[FleetEvent], None]) -> int:
+        """Subscribes to ``lluav/+/events``, waits for the grant, and hands
+        every event of ``vehicle`` (of every vehicle for None) to ``put``
+        from then on; returns the sink's id, for :meth:`unfollow_events`.
+        One filter for every follower: two overlapping ones would bring
+        each event twice (once per subscription, as MQTT 5 allows)."""
+        if vehicle is not None:
+            _name("vehicle id", vehicle)
+        topic = "lluav/+/events"
+        with self._lock:
+            sink = next(self._sink_ids)
+            self._sinks[sink] = (vehicle, put)
+            self._event_topics.add(topic)
+        rc, mid = self._client.subscribe(topic, options=SubscribeOptions(qos=1))
+        if rc != mqtt.MQTT_ERR_SUCCESS:
+            self.unfollow_events(sink)
+            raise ConnectionError(f"cannot subscribe to {topic}: {mqtt.error_string(rc)}")
+        with self._grant:
+            if not self._grant.wait_for(lambda: mid in self._granted_mids, self._timeout):
+                self._sinks.pop(sink, None)
+                raise ConnectionError(f"the broker did not grant {topic} within {self._timeout} s")
+        return sink
+
+    def unfollow_events(self, sink: int) -> None:
+        with self._lock:
+            self._sinks.pop(sink, None)
+
     def close(self) -> None:
         self._client.disconnect()
         self._client.loop_stop()
         self._fail_all("the fleet is closed")
+        with self._lock:
+            sinks, self._sinks = list(self._sinks.values()), {}
+        for _, put in sinks:
+            put(None)
 
 
 class FleetVehicle:
@@ -365,6 +415,14 @@ class Fleet:
         if password is not None:
             v._request(_encode(_methods.LOGIN, (password,), None), _methods.LOGIN)
         return v
+
+    def events(self, vehicle: str | None = None, timeout: float | None = None) -> FleetEvents:
+        """Follows the events of ``vehicle``, or of every vehicle (from
+        ``lluav/+/events``): an iterator of dicts, each with
+        ``"vehicle"`` added; subscribed (granted) when this returns.
+        ``timeout``: seconds to wait for each event (TimeoutError), or None.
+        See :class:`lluav.FleetEvents`."""
+        return FleetEvents(self._live(), vehicle, timeout)
 
     def close(self) -> None:
         """Disconnects from the broker. Idempotent."""
@@ -490,6 +548,11 @@ class AsyncFleet:
         if password is not None:
             await v._request(_encode(_methods.LOGIN, (password,), None), _methods.LOGIN)
         return v
+
+    async def events(self, vehicle: str | None = None, timeout: float | None = None) -> AsyncFleetEvents:
+        """As :meth:`Fleet.events`, an async iterator: ``async for event in
+        await fleet.events()``; subscribed (granted) when this returns."""
+        return await AsyncFleetEvents(self._live(), vehicle, timeout)._subscribe()
 
     async def close(self) -> None:
         """Disconnects from the broker. Idempotent."""

@@ -13,6 +13,7 @@ from websockets.sync.connection import Connection
 
 from . import _core, _methods, _tls
 from ._errors import ConnectionError
+from ._events import Events
 from ._response import check
 
 DEFAULT_URL = "ws://127.0.0.1:53001"
@@ -47,7 +48,8 @@ class Client:
         self.timeout = timeout
         self._lock = threading.Lock()
         self._closed_why = "the client is closed"
-        ssl = _tls.context(url, cafile)
+        self._password = password
+        self._ssl = ssl = _tls.context(url, cafile)
         # websockets' documented way in every version since 15 is the
         # context manager; the stack leaves it open until close().
         self._stack = contextlib.ExitStack()
@@ -102,6 +104,14 @@ class Client:
         if not isinstance(frame, str):
             raise TypeError(f"a frame is a str, not {type(frame).__name__}")
         return self._request(frame, _core.command_id(frame))
+
+    def events(self, timeout: float | None = None) -> Events:
+        """Subscribes to the server's events (``/events``, on a connection
+        of its own, logged in with this client's password) and returns them
+        as an iterator of dicts: ``for event in c.events(): ...``.
+        ``timeout``: seconds to wait for each event (TimeoutError), or None
+        to wait as long as it takes. See :class:`lluav.Events`."""
+        return Events(self.url, self._password, self._ssl, self.timeout, timeout)
 
     def close(self) -> None:
         """Closes the connection (the WebSocket closing handshake). Idempotent."""

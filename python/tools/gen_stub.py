@@ -29,6 +29,7 @@ TEMPLATE = """\
 # Do not edit: run `python python/tools/gen_stub.py` after changing the table.
 {module_doc}
 import builtins
+import ssl
 from collections.abc import Sequence
 from types import TracebackType
 from typing import Any, Final
@@ -81,6 +82,8 @@ class Client:
     ) -> None: ...
     def call(self, frame: str) -> dict[str, Any]:
 {Client.call}
+    def events(self, timeout: float | None = None) -> Events:
+{Client.events}
     def close(self) -> None:
 {Client.close}
     @property
@@ -103,6 +106,8 @@ class AsyncClient:
 {AsyncClient.connect}
     async def call(self, frame: str) -> dict[str, Any]:
 {AsyncClient.call}
+    def events(self, timeout: float | None = None) -> AsyncEvents:
+{AsyncClient.events}
     async def close(self) -> None:
 {AsyncClient.close}
     @property
@@ -141,6 +146,8 @@ class Fleet:
 {Fleet.vehicles}
     def vehicle(self, vehicle: str, password: str | None = None) -> FleetVehicle:
 {Fleet.vehicle}
+    def events(self, vehicle: str | None = None, timeout: float | None = None) -> FleetEvents:
+{Fleet.events}
     def close(self) -> None:
 {Fleet.close}
     @property
@@ -182,12 +189,85 @@ class AsyncFleet:
 {AsyncFleet.vehicles}
     async def vehicle(self, vehicle: str, password: str | None = None) -> AsyncFleetVehicle:
 {AsyncFleet.vehicle}
+    async def events(self, vehicle: str | None = None, timeout: float | None = None) -> AsyncFleetEvents:
+{AsyncFleet.events}
     async def close(self) -> None:
 {AsyncFleet.close}
     @property
     def closed(self) -> bool:
 {AsyncFleet.closed}
     async def __aenter__(self) -> AsyncFleet: ...
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+class Events:
+{Events}
+    url: str
+    timeout: float | None
+    def __init__(
+        self,
+        url: str,
+        password: str | None,
+        ssl: ssl.SSLContext | None,
+        open_timeout: float,
+        timeout: float | None,
+    ) -> None: ...
+    def __iter__(self) -> Events: ...
+    def __next__(self) -> dict[str, Any]: ...
+    def close(self) -> None:
+{Events.close}
+    def __enter__(self) -> Events: ...
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+class AsyncEvents:
+{AsyncEvents}
+    url: str
+    timeout: float | None
+    def __init__(
+        self,
+        url: str,
+        password: str | None,
+        ssl: ssl.SSLContext | None,
+        open_timeout: float,
+        timeout: float | None,
+    ) -> None: ...
+    async def connect(self) -> AsyncEvents:
+{AsyncEvents.connect}
+    def __aiter__(self) -> AsyncEvents: ...
+    async def __anext__(self) -> dict[str, Any]: ...
+    async def close(self) -> None:
+{AsyncEvents.close}
+    async def __aenter__(self) -> AsyncEvents: ...
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+class FleetEvents:
+{FleetEvents}
+    vehicle: str | None
+    timeout: float | None
+    def __init__(self, link: Any, vehicle: str | None, timeout: float | None) -> None: ...
+    def __iter__(self) -> FleetEvents: ...
+    def __next__(self) -> dict[str, Any]: ...
+    def close(self) -> None:
+{FleetEvents.close}
+    def __enter__(self) -> FleetEvents: ...
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+class AsyncFleetEvents:
+{AsyncFleetEvents}
+    vehicle: str | None
+    timeout: float | None
+    def __init__(self, link: Any, vehicle: str | None, timeout: float | None) -> None: ...
+    def __aiter__(self) -> AsyncFleetEvents: ...
+    async def __anext__(self) -> dict[str, Any]: ...
+    async def close(self) -> None:
+{AsyncFleetEvents.close}
+    async def __aenter__(self) -> AsyncFleetEvents: ...
     async def __aexit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None: ...
@@ -299,17 +379,32 @@ def render() -> str:
     docs: dict[str, str] = {"module_doc": docstring(lluav.__doc__, 0), "all": repr(sorted(lluav.__all__))}
     for name in ["Error", "InvalidArguments", "UnknownCommand", "CommandError", "ConnectionError"]:
         docs[name] = docstring(getattr(lluav, name).__doc__, 4)
-    for name in ["Client", "AsyncClient", "Fleet", "AsyncFleet", "FleetVehicle", "AsyncFleetVehicle"]:
+    for name in [
+        "Client",
+        "AsyncClient",
+        "Fleet",
+        "AsyncFleet",
+        "FleetVehicle",
+        "AsyncFleetVehicle",
+        "Events",
+        "AsyncEvents",
+        "FleetEvents",
+        "AsyncFleetEvents",
+    ]:
         docs[name] = docstring(getattr(lluav, name).__doc__, 4)
     for name in ["parse", "encode"]:
         docs[name] = docstring(getattr(lluav, name).__doc__, 4)
     for cls, members in [
-        (lluav.Client, ["call", "close", "closed"]),
-        (lluav.AsyncClient, ["connect", "call", "close", "closed"]),
+        (lluav.Client, ["call", "events", "close", "closed"]),
+        (lluav.AsyncClient, ["connect", "call", "events", "close", "closed"]),
         (lluav.FleetVehicle, ["call"]),
         (lluav.AsyncFleetVehicle, ["call"]),
-        (lluav.Fleet, ["vehicles", "vehicle", "close", "closed"]),
-        (lluav.AsyncFleet, ["client_id", "connect", "vehicles", "vehicle", "close", "closed"]),
+        (lluav.Fleet, ["vehicles", "vehicle", "events", "close", "closed"]),
+        (lluav.AsyncFleet, ["client_id", "connect", "vehicles", "vehicle", "events", "close", "closed"]),
+        (lluav.Events, ["close"]),
+        (lluav.AsyncEvents, ["connect", "close"]),
+        (lluav.FleetEvents, ["close"]),
+        (lluav.AsyncFleetEvents, ["close"]),
     ]:
         for member in members:
             docs[f"{cls.__name__}.{member}"] = docstring(inspect.getattr_static(cls, member).__doc__, 8)

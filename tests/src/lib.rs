@@ -649,3 +649,106 @@ pub fn sample_args(grammar: lluav_core::Grammar) -> &'static str {
         Grammar::Override => "failsafe",
     }
 }
+
+/// A `lluav` that keeps running (`lluav events`): its stdout and stderr
+/// read line by line as they come.
+pub struct Following {
+    child: Child,
+    stdout: mpsc::Receiver<String>,
+    stderr: mpsc::Receiver<String>,
+}
+
+impl Following {
+    /// Starts `lluav` with `args` (no password from the environment).
+    pub fn start(args: &[&str]) -> Following {
+        let mut child = Command::new(lluav_bin())
+            .args(args)
+            .env_remove("LLUAV_PASSWORD")
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("lluav starts");
+        let lines = |pipe: Box<dyn Read + Send>| {
+            let (tx, rx) = mpsc::channel();
+            std::thread::spawn(move || {
+                for line in BufReader::new(pipe).lines() {
+                    let Ok(line) = line else { break };
+                    if tx.send(line).is_err() {
+                        break;
+                    }
+                }
+            });
+            rx
+        };
+        let stdout = lines(Box::new(child.stdout.take().expect("stdout")));
+        let stderr = lines(Box::new(child.stderr.take().expect("stderr")));
+        Following {
+            child,
+            stdout,
+            stderr,
+        }
+    }
+
+    /// The next line of stdout, within [`WAIT`]; `None` once it closed.
+    pub fn line(&self) -> Option<String> {
+        match self.stdout.recv_timeout(WAIT) {
+            Ok(line) => Some(line),
+            Err(mpsc::RecvTimeoutError::Disconnected) => None,
+            Err(e) => panic!("no line from lluav within {WAIT:?}: {e}"),
+        }
+    }
+
+    /// Waits (within [`WAIT`]) for a line of stderr containing `what`;
+    /// returns every stderr line read up to it.
+    pub fn stderr_until(&self, what: &str) -> Vec<String> {
+        let mut seen = Vec::new();
+        loop {
+            match self.stderr.recv_timeout(WAIT) {
+                Ok(line) => {
+                    let done = line.contains(what);
+                    seen.push(line);
+                    if done {
+                        return seen;
+                    }
+                }
+                Err(e) => panic!("lluav never said {what:?} ({e}); stderr: {seen:?}"),
+            }
+        }
+    }
+
+    /// Sends SIGINT (Ctrl-C) and waits, within [`WAIT`], for the exit.
+    pub fn interrupt(self) -> ExitStatus {
+        let status = Command::new("kill")
+            .arg("-INT")
+            .arg(self.child.id().to_string())
+            .status()
+            .expect("kill runs");
+        assert!(status.success(), "kill -INT failed");
+        self.wait()
+    }
+
+    /// Waits, within [`WAIT`], for the exit.
+    pub fn wait(mut self) -> ExitStatus {
+        let start = Instant::now();
+        loop {
+            if let Some(status) = self.child.try_wait().expect("lluav status") {
+                return status;
+            }
+            if start.elapsed() > WAIT {
+                let _ = self.child.kill();
+                panic!("lluav did not exit within {WAIT:?}");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for Following {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}

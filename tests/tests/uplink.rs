@@ -1958,3 +1958,83 @@ async fn the_uplink_tells_its_own_down_and_up_and_its_stream_goes_on_after_a_res
     assert_eq!(carried, on_ws);
     assert_eq!(daemon.terminate().code(), Some(0));
 }
+
+/// `lluav --broker URL events`: every vehicle's events (`lluav/+/events`)
+/// as `V: {json}` lines, in order; `--vehicle V` only V's, as lines for a
+/// person.
+#[tokio::test]
+async fn lluav_broker_events_follows_every_vehicle_or_one() {
+    use lluav_tests::Following;
+    use lluav_tests::wait_for_state;
+
+    let broker = Mosquitto::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let options = || Options::password(PASSWORD).with_args(&["--sim-speed", "10"]);
+    let v1 = vehicle(&dir.path().join("v1"), &broker, "v1", options()).await;
+    let v2 = vehicle(&dir.path().join("v2"), &broker, "v2", options()).await;
+    let url = broker.url.as_str();
+    let all = Following::start(&["--broker", url, "events", "--json"]);
+    let only_v2 = Following::start(&["--broker", url, "--vehicle", "v2", "events"]);
+    // Said once the broker granted the subscription.
+    all.stderr_until("following the events");
+    only_v2.stderr_until("following the events");
+
+    for daemon in [&v1, &v2] {
+        let mut pilot = Conn::login(&daemon.url, PASSWORD).await;
+        assert_eq!(pilot.request("takeoff").await["ret"], 0);
+        wait_for_state(&mut pilot, "hovering", |s| s["fsm"] == "hover").await;
+    }
+    let takeoff = [
+        ("control", None, None),
+        ("fsm", Some("disarmed"), Some("takeoff")),
+        ("armed", None, None),
+        ("fsm", Some("takeoff"), Some("hover")),
+    ];
+    tokio::task::spawn_blocking(move || {
+        let mut seen: HashMap<String, Vec<Value>> = HashMap::new();
+        let enough = |seen: &HashMap<String, Vec<Value>>| {
+            ["v1", "v2"]
+                .iter()
+                .all(|v| seen.get(*v).map_or(0, Vec::len) >= takeoff.len())
+        };
+        while !enough(&seen) {
+            let line = all.line().expect("a line");
+            let (v, json) = line.split_once(": ").expect("V: {json}");
+            let e: Value = serde_json::from_str(json).unwrap_or_else(|e| panic!("not JSON ({e}): {line}"));
+            if !matches!(e["event"].as_str(), Some("battery" | "log" | "uplink")) {
+                seen.entry(v.to_owned()).or_default().push(e);
+            }
+        }
+        for (v, events) in &seen {
+            for (e, (name, from, to)) in events.iter().zip(takeoff) {
+                assert_eq!(e["event"], name, "{v}: {events:?}");
+                if let (Some(from), Some(to)) = (from, to) {
+                    assert_eq!(
+                        (e["from"].as_str(), e["to"].as_str()),
+                        (Some(from), Some(to)),
+                        "{v}"
+                    );
+                }
+            }
+            for pair in events.windows(2) {
+                let (a, b) = (pair[0]["seq"].as_u64(), pair[1]["seq"].as_u64());
+                assert!(a < b, "{v}: seq goes up: {events:?}");
+            }
+        }
+        let mut lines = Vec::new();
+        while lines.len() < takeoff.len() {
+            let line = only_v2.line().expect("a line");
+            assert!(line.starts_with("v2: "), "only v2's: {line}");
+            if !line.contains(" battery ") && !line.contains(" log ") && !line.contains(" uplink ") {
+                lines.push(line);
+            }
+        }
+        assert!(lines[1].ends_with(" fsm from=disarmed to=takeoff"), "{lines:?}");
+        assert_eq!(all.interrupt().code(), Some(0));
+        assert_eq!(only_v2.interrupt().code(), Some(0));
+    })
+    .await
+    .expect("the checks");
+    assert_eq!(v1.terminate().code(), Some(0));
+    assert_eq!(v2.terminate().code(), Some(0));
+}

@@ -6,10 +6,16 @@
 //! the command line is not a valid request. Without a command it starts an
 //! interactive session with history and completion of command names.
 //!
+//! `lluav events [--json] [--reconnect]` follows the server's `/events`
+//! stream: one line per event until Ctrl-C (exit 0); a refused login or a
+//! connection that ends exits 1 (unless `--reconnect`).
+//!
 //! Through an MQTT broker (lluavd's uplink): `lluav --broker URL fleet
 //! [--json]` lists the vehicles; `lluav --broker URL --vehicle V[,V2...]
 //! COMMAND` runs a command on each (one line per vehicle when several);
-//! `lluav --broker URL --vehicle V` is the interactive session with V.
+//! `lluav --broker URL --vehicle V` is the interactive session with V;
+//! `lluav --broker URL events [--vehicle V[,V2...]] [--json]` follows the
+//! vehicles' events (`lluav/V/events`), each line prefixed with `V: `.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -28,6 +34,9 @@ use rustyline::history::DefaultHistory;
 use rustyline::validate::Validator;
 use rustyline::{CompletionType, Config, Context, Editor, Helper};
 use tokio::runtime::Runtime;
+
+#[path = "lluav/events.rs"]
+mod events;
 
 /// The LLUAV command-line client: one command, or an interactive session.
 #[derive(Debug, Parser)]
@@ -68,9 +77,16 @@ struct Cli {
     /// With --broker: seconds to wait for each vehicle's answer.
     #[arg(long, value_name = "SECS", default_value_t = 5.0, requires = "broker")]
     timeout: f64,
-    /// With `--broker URL fleet`: print the fleet as JSON.
-    #[arg(long, requires = "broker")]
+    /// Print JSON: with `--broker URL fleet`, the fleet; with `events`,
+    /// each event as the server sent it (one object a line).
+    #[arg(long)]
     json: bool,
+    /// With `events`: keep following when the connection ends (lluavd
+    /// restarts, the network drops), reconnecting with a growing pause
+    /// and saying on stderr what may have been missed; a refused login
+    /// still ends it.
+    #[arg(long)]
+    reconnect: bool,
     /// The command and its arguments, e.g. `state` or `set_sp_ned 1:2:-3:0`;
     /// none starts the interactive session.
     #[arg(trailing_var_arg = true, allow_hyphen_values = true, value_name = "COMMAND")]
@@ -89,6 +105,17 @@ fn main() -> ExitCode {
     if cli.broker.is_some() {
         return through_broker(&runtime, cli);
     }
+    if cli.command.first().is_some_and(|c| c == "events") {
+        return events::follow(&runtime, cli);
+    }
+    // These used to need --broker (clap said so); they still mean nothing
+    // for one command.
+    if cli.json || cli.reconnect {
+        eprintln!(
+            "lluav: --json and --reconnect are for `lluav events` (and --json for `lluav --broker URL fleet`)"
+        );
+        return ExitCode::from(2);
+    }
     if cli.command.is_empty() {
         repl(&runtime, &cli)
     } else {
@@ -99,6 +126,9 @@ fn main() -> ExitCode {
 /// `--broker`: the fleet listing, a command on each vehicle, or the
 /// interactive session with one.
 fn through_broker(runtime: &Runtime, mut cli: Cli) -> ExitCode {
+    if cli.command.first().is_some_and(|c| c == "events") {
+        return events::follow_broker(runtime, cli);
+    }
     // `fleet --json` as well as `--json fleet`.
     if cli.command.first().is_some_and(|c| c == "fleet") && cli.command.iter().skip(1).all(|a| a == "--json")
     {

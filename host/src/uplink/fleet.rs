@@ -49,6 +49,9 @@ pub const LISTING_WAIT: Duration = Duration::from_secs(1);
 /// once none came for this long, the listing is complete.
 const LISTING_QUIET: Duration = Duration::from_millis(150);
 
+/// How long [`Fleet::events`] waits for its subscription's grant at most.
+const SUBSCRIBE_WAIT: Duration = Duration::from_secs(5);
+
 /// How a [`Fleet`] connects.
 #[derive(Clone, Debug, Default)]
 pub struct FleetOptions {
@@ -194,6 +197,13 @@ struct Inner {
     /// When the subscriptions were granted, and the last retained message.
     granted: Option<Instant>,
     last_retained: Option<Instant>,
+    /// The events filter subscribed to by [`Fleet::events`], and where its
+    /// events go: `(vehicle, event)`.
+    events: Option<(String, tokio::sync::mpsc::UnboundedSender<(String, Value)>)>,
+    /// Subscribe requests sent and granted (the broker answers them in
+    /// order): [`Fleet::events`] returns once its own is granted.
+    subscribes: u64,
+    granted_count: u64,
 }
 
 /// Vehicles reached through one broker connection.
@@ -265,7 +275,10 @@ impl Fleet {
             .subscribe_many(filters(&client_id))
             .await
             .map_err(|e| FleetError::Lost(e.to_string()))?;
-        let inner = Arc::new(Mutex::new(Inner::default()));
+        let inner = Arc::new(Mutex::new(Inner {
+            subscribes: 1,
+            ..Inner::default()
+        }));
         let task = tokio::spawn(follow(
             events,
             client.clone(),
@@ -378,6 +391,50 @@ impl Fleet {
         }
     }
 
+    /// Follows the events of `vehicle`, or of every vehicle (`lluav/V/events`
+    /// or `lluav/+/events`, DESIGN.md "Events"): each comes as `(vehicle,
+    /// event object)` in the order the broker delivers them (QoS 1). A
+    /// message that is not a JSON object is skipped. The subscription is
+    /// made again after a reconnection; what was published while the
+    /// connection was down is not delivered (a clean session): `seq` shows
+    /// the hole. A second call replaces the first one's subscription.
+    pub async fn events(
+        &self,
+        vehicle: Option<&str>,
+    ) -> Result<tokio::sync::mpsc::UnboundedReceiver<(String, Value)>, FleetError> {
+        let filter = match vehicle {
+            Some(v) if !valid_name(v) => {
+                return Err(FleetError::Usage(format!(
+                    "vehicle id {v:?} is not 1-64 of [A-Za-z0-9_-]"
+                )));
+            }
+            Some(v) => Topics::new(v).events().to_owned(),
+            None => topic::every_vehicle("events"),
+        };
+        let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+        let (old, mine) = {
+            let mut inner = self.inner();
+            inner.subscribes += 1;
+            (inner.events.replace((filter.clone(), tx)), inner.subscribes)
+        };
+        if let Some((old, _)) = old
+            && old != filter
+        {
+            let _ = self.client.unsubscribe(old).await;
+        }
+        self.client
+            .subscribe(filter, QoS::AtLeastOnce)
+            .await
+            .map_err(|e| FleetError::Lost(e.to_string()))?;
+        // Events published once this returns are delivered: wait for the
+        // grant (bounded: a broker that never grants still gets us going).
+        let start = Instant::now();
+        while self.inner().granted_count < mine && start.elapsed() < SUBSCRIBE_WAIT {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        Ok(rx)
+    }
+
     /// Disconnects from the broker.
     pub async fn close(self) {
         let _ = self.client.disconnect().await;
@@ -410,10 +467,12 @@ fn filters(client_id: &str) -> [Filter; 3] {
     .map(|path| Filter::new(path, QoS::AtLeastOnce))
 }
 
-/// Subscribes again after a reconnection (the session is clean).
-fn subscribe(client: &AsyncClient, client_id: &str) {
+/// Subscribes again after a reconnection (the session is clean), the
+/// events filter of [`Fleet::events`] too.
+fn subscribe(client: &AsyncClient, client_id: &str, events: Option<String>) {
     let client = client.clone();
-    let filters = filters(client_id);
+    let mut filters = filters(client_id).to_vec();
+    filters.extend(events.map(|path| Filter::new(path, QoS::AtLeastOnce)));
     tokio::spawn(async move {
         let _ = client.subscribe_many(filters).await;
     });
@@ -427,11 +486,20 @@ async fn follow(mut events: EventLoop, client: AsyncClient, client_id: String, i
     loop {
         match events.poll().await {
             Ok(Event::Incoming(Packet::Publish(p))) => heard(&inner, &p),
-            Ok(Event::Incoming(Packet::SubAck(_))) => lock(&inner).granted = Some(Instant::now()),
+            Ok(Event::Incoming(Packet::SubAck(_))) => {
+                let mut inner = lock(&inner);
+                inner.granted = Some(Instant::now());
+                inner.granted_count += 1;
+            }
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
-                lock(&inner).down = None;
+                let events = {
+                    let mut inner = lock(&inner);
+                    inner.down = None;
+                    inner.subscribes += 1;
+                    inner.events.as_ref().map(|(filter, _)| filter.clone())
+                };
                 backoff.reset();
-                subscribe(&client, &client_id);
+                subscribe(&client, &client_id, events);
             }
             Ok(Event::Outgoing(Outgoing::Disconnect)) => return,
             Ok(_) => {}
@@ -463,6 +531,14 @@ fn heard(inner: &Mutex<Inner>, p: &Publish) {
             inner.vehicles.entry(vehicle.to_owned()).or_default().online = value["online"].as_bool();
         }
         "state" => inner.vehicles.entry(vehicle.to_owned()).or_default().state = Some(value),
+        "events" => {
+            if value.is_object()
+                && let Some((_, tx)) = &inner.events
+            {
+                let _ = tx.send((vehicle.to_owned(), value));
+            }
+            return;
+        }
         _ if kind.starts_with("res/") => {
             let waiter = value["id"].as_str().and_then(|id| inner.waiting.remove(id));
             if let Some(tx) = waiter {
