@@ -39,8 +39,10 @@ const CLOSE_WAIT: Duration = Duration::from_secs(3);
 /// queue of [`crate::events::QUEUE`] events and a `gap` are the promise.
 const SEND_BUFFER: usize = 32 * 1024;
 
-/// Keeps a subscriber's kernel buffer small (see [`SEND_BUFFER`]); a
-/// socket that refuses keeps its own. `fd` must be the open socket of the
+/// Keeps a subscriber's kernel send buffer small (32 KiB: a couple of
+/// hundred events, so that the events queue and its `gap` are what a
+/// subscriber that stops reading meets); a socket that refuses keeps its
+/// own. `fd` must be the open socket of the
 /// connection being served (the listener passes its TCP stream's).
 pub fn small_send_buffer(fd: std::os::fd::RawFd) {
     // SAFETY: `fd` is the descriptor of the TCP stream the caller's
