@@ -246,21 +246,9 @@ async fn upgrade<S, H>(
             return refuse(stream, peer, &Refusal::Request(why), offence, deadline, shared).await;
         }
     };
-    let slot = match shared.slots.admit(pending, peer.ip()) {
-        Ok((slot, reclaimed)) => {
-            if let Some(ip) = reclaimed {
-                shared.reports.note(ip, Offence::SessionReclaimed);
-            }
-            slot
-        }
-        Err(full) => {
-            let offence = match full {
-                Full::Address => Offence::TooManySessions,
-                Full::Server => Offence::ServerFull,
-            };
-            let refusal = unavailable(full, &shared.config.limits);
-            return refuse(stream, peer, &refusal, offence, deadline, shared).await;
-        }
+    let slot = match take_slot(shared, pending, peer) {
+        Ok(slot) => slot,
+        Err((refusal, offence)) => return refuse(stream, peer, &refusal, offence, deadline, shared).await,
     };
     // On the bus before the `101`: all that follows the upgrade is told.
     let early = events.then(|| shared.handler.subscribe()).flatten();
@@ -282,6 +270,31 @@ async fn upgrade<S, H>(
         subscriber::serve(stream, leftover, peer, slot, cx, stop, early).await;
     } else {
         session(stream, peer, leftover, slot, shared, stop).await;
+    }
+}
+
+/// A session slot for `peer`'s acceptable upgrade (noting the address
+/// whose session it reclaimed, if any), or the refusal and the offence it
+/// counts as when there is none.
+fn take_slot<H: Handler>(
+    shared: &Shared<H>,
+    pending: Pending,
+    peer: SocketAddr,
+) -> Result<Held, (Refusal, Offence)> {
+    match shared.slots.admit(pending, peer.ip()) {
+        Ok((slot, reclaimed)) => {
+            if let Some(ip) = reclaimed {
+                shared.reports.note(ip, Offence::SessionReclaimed);
+            }
+            Ok(slot)
+        }
+        Err(full) => {
+            let offence = match full {
+                Full::Address => Offence::TooManySessions,
+                Full::Server => Offence::ServerFull,
+            };
+            Err((unavailable(full, &shared.config.limits), offence))
+        }
     }
 }
 

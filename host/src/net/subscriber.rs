@@ -212,30 +212,8 @@ where
             () = cancel.notified() => return Stop::Close(CloseCode::Policy, "not logged in; slot reclaimed"),
             received = s.receive() => {
                 let Some(received) = received else { return Stop::Gone };
-                match received {
-                    Received::Control(Opcode::Ping) => {
-                        let payload = s.reader.control().to_vec();
-                        frame::write(&mut s.outbox, Opcode::Pong, &payload);
-                        if !s.flush().await {
-                            return Stop::Gone;
-                        }
-                    }
-                    Received::Control(Opcode::Pong) => ping_sent = None,
-                    Received::Control(Opcode::Close) => {
-                        return Stop::Answer(close_reply(s.reader.control()));
-                    }
-                    Received::Control(_) => {}
-                    Received::Fail(code) => return Stop::Close(code, ""),
-                    Received::Oversized => return Stop::Close(CloseCode::TooBig, ""),
-                    Received::InvalidText => return Stop::Close(CloseCode::InvalidPayload, ""),
-                    Received::Message if subscribed => {
-                        return Stop::Close(CloseCode::Policy, "the events endpoint only sends");
-                    }
-                    Received::Message => {
-                        if let Some(stop) = login(s, session, handler, &mut out).await {
-                            return stop;
-                        }
-                    }
+                if let Some(stop) = on_received(s, received, subscribed, &mut ping_sent, session, handler, &mut out).await {
+                    return stop;
                 }
             }
             next = async {
@@ -259,19 +237,69 @@ where
                 if !subscribed && now >= login_deadline {
                     return Stop::Close(CloseCode::Policy, "no login in time");
                 }
-                if ping_sent.is_some() {
-                    debug!(%peer, "subscriber did not answer a ping; dropping it");
-                    return Stop::Gone;
+                if let Some(stop) = ping(s, &mut ping_sent, peer).await {
+                    return stop;
                 }
-                frame::write(&mut s.outbox, Opcode::Ping, b"");
-                if !s.flush().await {
-                    return Stop::Gone;
-                }
-                ping_sent = Some(now);
                 next_ping = now + PING_EVERY;
             }
         }
     }
+}
+
+/// What a frame from the subscriber does: pings answered, its pong noted,
+/// a close answered; a message is a login before it is admitted and ends
+/// the session after. `Some` ends the session.
+async fn on_received<S, H>(
+    s: &mut Stream<S>,
+    received: Received,
+    subscribed: bool,
+    ping_sent: &mut Option<Instant>,
+    session: &mut H::Session,
+    handler: &H,
+    out: &mut [u8],
+) -> Option<Stop>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+    H: Handler,
+{
+    match received {
+        Received::Control(Opcode::Ping) => {
+            let payload = s.reader.control().to_vec();
+            frame::write(&mut s.outbox, Opcode::Pong, &payload);
+            (!s.flush().await).then_some(Stop::Gone)
+        }
+        Received::Control(Opcode::Pong) => {
+            *ping_sent = None;
+            None
+        }
+        Received::Control(Opcode::Close) => Some(Stop::Answer(close_reply(s.reader.control()))),
+        Received::Control(_) => None,
+        Received::Fail(code) => Some(Stop::Close(code, "")),
+        Received::Oversized => Some(Stop::Close(CloseCode::TooBig, "")),
+        Received::InvalidText => Some(Stop::Close(CloseCode::InvalidPayload, "")),
+        Received::Message if subscribed => {
+            Some(Stop::Close(CloseCode::Policy, "the events endpoint only sends"))
+        }
+        Received::Message => login(s, session, handler, out).await,
+    }
+}
+
+/// Pings the subscriber, unless the last ping went unanswered (then the
+/// subscriber is gone). `Some` ends the session.
+async fn ping<S>(s: &mut Stream<S>, ping_sent: &mut Option<Instant>, peer: SocketAddr) -> Option<Stop>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    if ping_sent.is_some() {
+        debug!(%peer, "subscriber did not answer a ping; dropping it");
+        return Some(Stop::Gone);
+    }
+    frame::write(&mut s.outbox, Opcode::Ping, b"");
+    if !s.flush().await {
+        return Some(Stop::Gone);
+    }
+    *ping_sent = Some(Instant::now());
+    None
 }
 
 /// A message before the subscriber is admitted: a `login`, answered as the
