@@ -149,10 +149,10 @@ mod tests {
     fn every_bare_command_encodes_back_to_itself() {
         let mut n = 0;
         for spec in &TABLE {
-            if let Ok(cmd) = parse(spec.name) {
+            if let Ok(cmd) = parse(spec.name()) {
                 let mut text = Text::<64>::new();
                 cmd.encode(&mut text).unwrap();
-                assert!(parse(text.as_str()).unwrap() == cmd, "{}", spec.name);
+                assert!(parse(text.as_str()).unwrap() == cmd, "{}", spec.name());
                 n += 1;
             }
         }
@@ -330,13 +330,13 @@ mod tests {
             if spec.id == CommandId::Login {
                 continue;
             }
-            let r = reply(&mut s, &mut session, spec.name, &mut out);
+            let r = reply(&mut s, &mut session, spec.name(), &mut out);
             let mut head = Text::<48>::new();
             write!(head, ",\"cmd\":{},", u8::from(spec.id)).unwrap();
             assert!(
                 r.starts_with("{\"ret\":") && r.contains(head.as_str()) && r.ends_with('}'),
                 "{}",
-                spec.name
+                spec.name()
             );
         }
     }
