@@ -201,8 +201,17 @@ async fn a_setpoint_at_or_below_the_ground_is_refused_and_the_vehicle_keeps_hove
     }
     let r = c.request("state").await;
     assert_eq!(r["state"]["fsm"], "hover", "{r}");
-    let z = |v: &Value| v["state"]["position"]["z"].as_f64().expect("z");
-    assert!((z(&r) - z(&hover)).abs() < 1e-3, "still at its height: {r}");
+    // The refused setpoints changed nothing: the same setpoint, and the
+    // vehicle settles at it. (Not the position when `hover` was first
+    // seen: the simulator says hover within a band and settles on after,
+    // by how much before the next request depending on the machine's
+    // speed: arm64 under qemu.)
+    assert_eq!(r["state"]["setpoint"], hover["state"]["setpoint"], "{r}");
+    let z = |s: &Value, at: &str| s[at]["z"].as_f64().unwrap_or(f64::NAN);
+    wait_for_state(&mut c, "hovering at its setpoint", |s| {
+        s["fsm"] == "hover" && (z(s, "position") - z(s, "setpoint")).abs() < 1e-3
+    })
+    .await;
     assert_eq!(c.request("set_sp_ned 3:0:-0.5:0").await["ret"], 0);
 }
 
