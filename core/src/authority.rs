@@ -16,7 +16,6 @@
 
 use crate::number::Digits;
 use crate::response::Fields;
-use crate::session::SessionId;
 
 /// Longest [`Label`], in bytes: `mqtt ` and a 64-byte client id, or `ws `,
 /// a bracketed IPv6 address with its port and ` #` and a session id.
@@ -211,6 +210,12 @@ impl Pilot {
     }
 }
 
+/// Which session a backend is serving, unique among the open sessions of a
+/// [`crate::Server`] (handed out by [`crate::Server::open`]; 0 for sessions
+/// made with [`crate::Session::new`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SessionId(pub u32);
+
 /// Who flies, vehicle-wide.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Control {
@@ -245,17 +250,18 @@ impl Control {
         self.pilot.as_ref().is_some_and(|p| p.session == session)
     }
 
-    /// Gives control to `session` (no change when it holds it already);
-    /// returns the pilot it replaced, if any.
-    pub(crate) fn give(&mut self, session: &crate::Session, now_ms: i64) -> Option<Pilot> {
-        if self.held_by(session.id()) {
-            self.heard(session.id(), now_ms);
+    /// Gives control to session `id` (an admin or not, named `label`; no
+    /// change when it holds it already); returns the pilot it replaced, if
+    /// any.
+    pub(crate) fn give(&mut self, id: SessionId, admin: bool, label: &Label, now_ms: i64) -> Option<Pilot> {
+        if self.held_by(id) {
+            self.heard(id, now_ms);
             return None;
         }
         self.pilot.replace(Pilot {
-            session: session.id(),
-            admin: session.admin(),
-            label: session.label().clone(),
+            session: id,
+            admin,
+            label: label.clone(),
             since_ms: now_ms,
             last_ms: now_ms,
         })

@@ -318,7 +318,8 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
                         .pilot()
                         .is_some_and(|p| p.admin() && p.session() != session.id());
                 if steered || !admin_keeps {
-                    self.control.give(session, now);
+                    self.control
+                        .give(session.id(), session.admin(), session.label(), now);
                 }
                 answer
             }
@@ -450,7 +451,8 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             Some(f) if f.holds() => self.backend.override_failsafe()?,
             _ => {}
         }
-        self.control.give(session, now);
+        self.control
+            .give(session.id(), session.admin(), session.label(), now);
         if let Some(p) = self.control.pilot() {
             out.object("control", |o| p.write(o, Some(true)));
         }

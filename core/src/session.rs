@@ -31,11 +31,9 @@ pub enum Role {
     Admin,
 }
 
-/// Which session a backend is serving, unique among the open sessions of a
-/// [`crate::Server`] (handed out by [`crate::Server::open`]; 0 for sessions
-/// made with [`Session::new`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct SessionId(pub u32);
+// Defined beside the control it names, so that `authority` needs nothing
+// of this module.
+pub use crate::authority::SessionId;
 
 /// A command the backend has started and will finish later: the session
 /// waits for it ([`Session::pending`]), the backend answered
