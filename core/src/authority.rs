@@ -194,6 +194,11 @@ impl Pilot {
         self.last_ms
     }
 
+    /// Whether its control lapsed by `now_ms`: no request for `timeout_ms`.
+    fn lapsed(&self, now_ms: i64, timeout_ms: u32) -> bool {
+        now_ms.saturating_sub(self.last_ms) >= i64::from(timeout_ms)
+    }
+
     /// Whether it took control as an admin (in lock mode it then keeps it
     /// against everyone but another admin).
     pub fn admin(&self) -> bool {
@@ -231,17 +236,20 @@ impl Control {
     /// Ends control held without a request for `timeout_ms` at `now_ms`;
     /// returns the pilot that lapsed.
     pub(crate) fn expire(&mut self, now_ms: i64, timeout_ms: u32) -> Option<Pilot> {
-        let silent = self
-            .pilot
-            .as_ref()
-            .is_some_and(|p| now_ms.saturating_sub(p.last_ms) >= i64::from(timeout_ms));
+        let silent = self.pilot.as_ref().is_some_and(|p| p.lapsed(now_ms, timeout_ms));
         if silent { self.pilot.take() } else { None }
     }
 
-    /// A request from `session` at `now_ms` keeps its control alive.
-    pub(crate) fn heard(&mut self, session: SessionId, now_ms: i64) {
-        if let Some(p) = self.pilot.as_mut().filter(|p| p.session == session) {
-            p.last_ms = p.last_ms.max(now_ms);
+    /// A request from `session` at `now_ms`: control held without a request
+    /// for `timeout_ms` ends first (the lapse may be this session's own);
+    /// otherwise the request keeps its session's control alive. One pass,
+    /// as it runs before every request.
+    #[inline]
+    pub(crate) fn heard(&mut self, session: SessionId, now_ms: i64, timeout_ms: u32) {
+        match &mut self.pilot {
+            Some(p) if p.lapsed(now_ms, timeout_ms) => self.pilot = None,
+            Some(p) if p.session == session => p.last_ms = p.last_ms.max(now_ms),
+            _ => {}
         }
     }
 
@@ -254,8 +262,8 @@ impl Control {
     /// change when it holds it already); returns the pilot it replaced, if
     /// any.
     pub(crate) fn give(&mut self, id: SessionId, admin: bool, label: &Label, now_ms: i64) -> Option<Pilot> {
-        if self.held_by(id) {
-            self.heard(id, now_ms);
+        if let Some(p) = self.pilot.as_mut().filter(|p| p.session == id) {
+            p.last_ms = p.last_ms.max(now_ms);
             return None;
         }
         self.pilot.replace(Pilot {

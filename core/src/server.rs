@@ -150,12 +150,18 @@ impl<'a> Answer<'a> {
         Answer::Error(Ret::InvalidArgs, e.command().map_or(0, u8::from), e.parts())
     }
 
-    /// What a command that ran came to, given the fields it wrote.
-    fn settled(id: CommandId, result: Result<Step, Failure>, fields: &Fields<'_>) -> Self {
+    /// What a command that ran came to, given the fields it wrote (and, for
+    /// one left pending, whether it takes control once it answers 0).
+    fn settled(
+        id: CommandId,
+        result: Result<Step, Failure>,
+        fields: &Fields<'_>,
+        takes_control: bool,
+    ) -> Self {
         let cmd = u8::from(id);
         match (result, fields.end()) {
             (Err(f), _) => Answer::Failed(cmd, f, fields.failure_end()),
-            (Ok(Step::Pending(ticket)), _) => Answer::Pending(id, ticket, false),
+            (Ok(Step::Pending(ticket)), _) => Answer::Pending(id, ticket, takes_control),
             (Ok(Step::Done), Some(end)) => Answer::Done(cmd, end),
             (Ok(Step::Done), None) => Answer::Error(Ret::Failed, cmd, [messages::TOO_LARGE, ""]),
         }
@@ -260,8 +266,8 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
             Err(code) => return Outcome::Close(code),
         };
         let now = self.clock.unix_ms();
-        self.control.expire(now, self.backend.control_timeout_ms());
-        self.control.heard(session.id(), now);
+        self.control
+            .heard(session.id(), now, self.backend.control_timeout_ms());
         let mut close = None;
         let answer = self.answer(session, text, now, out, &mut close);
         write(session, answer, now, close, out)
@@ -284,47 +290,44 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         let ctx = context(&self.backend, &self.control, &self.auth, session, now);
         let mut fields = Fields::after_head(out, u8::from(id), now);
         let result = self.backend.finish(ticket, &ctx, &mut fields);
-        let answer = self.took_effect(
-            session,
-            id,
-            takes_control,
-            now,
-            Answer::settled(id, result, &fields),
-        );
+        let answer = self.settle(session, id, result, &fields, takes_control, now);
         write(session, answer, now, None, out)
     }
 
-    /// Control after a command that steered or brought the vehicle down
-    /// answered 0 (or, pending, will decide that later): it goes to the
-    /// command's session — except that in lock mode an admin pilot keeps
-    /// it against a conservative command.
-    fn took_effect<'a>(
+    /// What a command that ran came to; one that takes control and answers
+    /// 0 takes it first. (Control is settled before the answer is built, so
+    /// that the answer is built where it is returned.)
+    fn settle<'a>(
         &mut self,
         session: &Session,
         id: CommandId,
+        result: Result<Step, Failure>,
+        fields: &Fields<'_>,
         takes_control: bool,
         now: i64,
-        answer: Answer<'a>,
     ) -> Answer<'a> {
-        match answer {
-            // The pilot's own commands: `handle` has already heard it.
-            Answer::Done(..) if takes_control && self.control.held_by(session.id()) => answer,
-            Answer::Done(..) if takes_control => {
-                // Taking control, it either steered or brought the vehicle down.
-                let steered = !id.spec().class.conservative();
-                let admin_keeps = self.auth.lock_mode()
-                    && self
-                        .control
-                        .pilot()
-                        .is_some_and(|p| p.admin() && p.session() != session.id());
-                if steered || !admin_keeps {
-                    self.control
-                        .give(session.id(), session.admin(), session.label(), now);
-                }
-                answer
-            }
-            Answer::Pending(id, ticket, _) => Answer::Pending(id, ticket, takes_control),
-            other => other,
+        let answers_0 = matches!(result, Ok(Step::Done)) && fields.end().is_some();
+        if takes_control && answers_0 && !self.control.held_by(session.id()) {
+            self.took_effect(session, id, now);
+        }
+        Answer::settled(id, result, fields, takes_control)
+    }
+
+    /// Control after a command that takes it (it steered or brought the
+    /// vehicle down) answered 0: it goes to the command's session — except
+    /// that in lock mode an admin pilot keeps it against a conservative
+    /// command.
+    /// (Not for the pilot's own commands: `handle` has already heard it.)
+    fn took_effect(&mut self, session: &Session, id: CommandId, now: i64) {
+        let steered = !id.spec().class.conservative();
+        let admin_keeps = self.auth.lock_mode()
+            && self
+                .control
+                .pilot()
+                .is_some_and(|p| p.admin() && p.session() != session.id());
+        if steered || !admin_keeps {
+            self.control
+                .give(session.id(), session.admin(), session.label(), now);
         }
     }
 
@@ -360,7 +363,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         if let Err(held) = held {
             let mut fields = Fields::after_head(out, cmd, now);
             let failure = held.fail(&mut fields);
-            return Answer::settled(spec.id, Err(failure), &fields);
+            return Answer::settled(spec.id, Err(failure), &fields, false);
         }
         let command = match parse::parse_args(spec, args) {
             Ok(c) => c,
@@ -369,8 +372,7 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
         let mut fields = Fields::after_head(out, cmd, now);
         let result = self.run(session, &command, now, &mut fields, close);
         let takes_control = steers || spec.class.conservative();
-        let answer = Answer::settled(spec.id, result, &fields);
-        self.took_effect(session, spec.id, takes_control, now, answer)
+        self.settle(session, spec.id, result, &fields, takes_control, now)
     }
 
     /// Runs a command that passed every gate.

@@ -243,6 +243,12 @@ impl Spec {
         }
     }
 
+    /// Whether its wire name is `name`: bytes, no character boundary to
+    /// check (a name is ASCII), as the lookup before every request wants.
+    fn is_named(&self, name: &str) -> bool {
+        self.usage.as_bytes().get(..usize::from(self.name_len)) == Some(name.as_bytes())
+    }
+
     /// One line saying what the command does (kept out of the table so
     /// that a firmware that never prints it links none of the text).
     pub fn summary(&self) -> &'static str {
@@ -555,7 +561,7 @@ pub fn lookup(name: &str) -> Option<&'static Spec> {
     for _ in 0..SLOTS {
         let row = usize::from(*BY_NAME.get(slot)?).checked_sub(1)?;
         let spec = TABLE.get(row)?;
-        if spec.name() == name {
+        if spec.is_named(name) {
             return Some(spec);
         }
         slot = (slot + 1) % SLOTS;

@@ -111,11 +111,15 @@ value_writers!(Items, element, item());
 /// noise (a yaw of 3.3e-16 left over from arithmetic is 0; DESIGN.md).
 const NOISE: f64 = 1e-6;
 
+/// [`NOISE`] as an `f32`, compared without widening (the same verdict for
+/// every `f32`).
+const NOISE_F32: f32 = 1e-6;
+
 /// Shortest round-trip text (`0.1`, `-10.0`, `1e30`: [`crate::number`],
 /// the same text as Ryu), `-0` and noise written as 0 (`0.0`); JSON has no NaN or
 /// infinity, so those are `null`.
 fn write_f32(v: f32, out: &mut [u8; number::MAX_LEN]) -> usize {
-    if f64::from(v.abs()) <= NOISE {
+    if v.abs() <= NOISE_F32 {
         number::write_f32(0.0, out)
     } else if v.is_finite() {
         number::write_f32(v, out)
