@@ -155,6 +155,32 @@ class Client:
         self.ws.close()
 
 
+class Subscriber:
+    """A plain reader of lluavd's `/events` stream beside the page, logged
+    in first as DESIGN.md says (the login's answer comes before any event)."""
+
+    def __init__(self, daemon: Lluavd, password: str | None):
+        self.ws = websocket.create_connection(daemon.ws_url + "events", timeout=WAIT, suppress_origin=True)
+        if password is not None:
+            self.ws.send(f"login {password}")
+            answer = json.loads(self.ws.recv())
+            assert answer["ret"] == 0, answer
+
+    def until(self, what: str, last) -> list[dict]:
+        """Every event up to and including the first for which `last(event)` holds."""
+        seen = []
+        deadline = time.monotonic() + WAIT
+        while time.monotonic() < deadline:
+            self.ws.settimeout(max(0.1, deadline - time.monotonic()))
+            seen.append(json.loads(self.ws.recv()))
+            if last(seen[-1]):
+                return seen
+        raise AssertionError(f"never {what}: {seen}")
+
+    def close(self) -> None:
+        self.ws.close()
+
+
 def free_udp_port() -> int:
     """A UDP port on 127.0.0.1 that nothing holds now (for a MAVLink link)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
