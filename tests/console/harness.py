@@ -77,16 +77,18 @@ def lluavd_binary() -> str:
 
 
 class Lluavd:
-    """A running lluavd on 127.0.0.1 port 0 with its own data directory."""
+    """A running lluavd with its own data directory, on 127.0.0.1 port 0
+    unless `bind` names an address (a restart on the address of one that
+    stopped: the page reconnects to the same origin)."""
 
-    def __init__(self, binary: str, *args: str):
+    def __init__(self, binary: str, *args: str, bind: str = "127.0.0.1:0"):
         self._dir = tempfile.TemporaryDirectory(prefix="lluav-console-")
         self.stderr_path = pathlib.Path(self._dir.name) / "stderr.log"
         env = {k: v for k, v in os.environ.items() if k != "LLUAV_PASSWORD"}
         env["RUST_LOG"] = "info"
         self._stderr = open(self.stderr_path, "wb")
         self.proc = subprocess.Popen(
-            [binary, "--bind", "127.0.0.1:0", "--data-dir", str(pathlib.Path(self._dir.name) / "data"), *args],
+            [binary, "--bind", bind, "--data-dir", str(pathlib.Path(self._dir.name) / "data"), *args],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=self._stderr,
