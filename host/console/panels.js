@@ -471,7 +471,12 @@ function json(answer) {
  * as it keeps; and the stream's state in its badge.
  */
 export class EventLog {
-  /** The line each item shows. */
+  /**
+   * The line each item shows, and what is known of its control labels
+   * (label → whether it is this console): kept per line, because the page
+   * forgets its verdicts with each new command connection (a new session,
+   * a new label), and a line once known to be about this console stays so.
+   */
   #lines = new WeakMap();
 
   constructor(feed) {
@@ -499,7 +504,8 @@ export class EventLog {
       text.className = 'text';
       text.textContent = line.text;
       item.append(eventTime(line.ts), name, text);
-      this.#lines.set(item, line);
+      this.#lines.set(item, { line, you: new Map() });
+      if (line.name === 'control') this.#learn(item);
       this.list.prepend(item);
     }
     while (this.list.children.length > this.feed.max) this.list.lastElementChild.remove();
@@ -510,10 +516,18 @@ export class EventLog {
    * known as this console's own (the page learns it from `control`).
    */
   refreshControl() {
-    for (const item of this.list.querySelectorAll('li[data-name="control"]')) {
-      const line = this.#lines.get(item);
-      if (line?.event) item.querySelector('.text').textContent = describe(line.event, this.feed.isYou).text;
+    for (const item of this.list.querySelectorAll('li[data-name="control"]')) this.#learn(item);
+  }
+
+  /** Takes what the page now knows of a control line's labels, and says the line with all it knows. */
+  #learn(item) {
+    const kept = this.#lines.get(item);
+    if (!kept?.line.event) return;
+    for (const label of [kept.line.event.by, kept.line.event.from]) {
+      const verdict = typeof label === 'string' ? this.feed.isYou(label) : null;
+      if (verdict !== null) kept.you.set(label, verdict);
     }
+    item.querySelector('.text').textContent = describe(kept.line.event, (l) => kept.you.get(l) ?? null).text;
   }
 
   /** The stream's state: `connecting`, `connected`, `disconnected`, `refused` or `off`, with a detail. */

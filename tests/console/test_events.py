@@ -88,8 +88,12 @@ def test_a_restarted_daemon_is_marked_and_the_stream_comes_back(daemon, binary, 
         page.click("take-control")
         page.wait(lambda: [(e["kind"], e["name"]) for e in page.event_lines()[-2:]] == [("marker", "restart"), ("event", "control")],
                   "the first event of the new run comes after a restart marker")
-        marker, control = page.event_lines()[-2:]
+        before, marker, control = page.event_lines()[-3:]
         assert "restarted" in marker["text"] and control["seq"] == 1, (marker, control)
+        page.wait(lambda: re.fullmatch(rf"taken by this console \({LABEL}\)", page.event_lines()[-1]["text"]),
+                  "the new session's take is this console's too")
+        assert re.fullmatch(rf"taken by this console \({LABEL}\)", before["text"]), "the old run's line keeps saying so"
+        assert before["text"] != page.event_lines()[-1]["text"], "two sessions, two labels"
         page.screenshot("events-restart")
         # While lluavd was gone the page's reconnections failed, which
         # Chromium logs as errors; nothing else may have been logged.
