@@ -130,7 +130,8 @@ def test_the_simulators_events_as_the_console_reads_them(binary):
         other.ok("control_take failsafe")
         flight += events.until("the override", lambda e: e["event"] == "failsafe" and e["overridden"])
         other.ok("land")
-        flight += events.until("disarmed again", lambda e: e["event"] == "armed" and not e["armed"])
+        # The failsafe ends on the ground, disarmed, and says so.
+        flight += events.until("the failsafe's end", lambda e: e["event"] == "failsafe" and e["reason"] is None)
         check("sim-events", flight)
     finally:
         daemon.stop()

@@ -69,6 +69,11 @@ test('every event lluavd sent in a real flight reads as words, not as raw fields
   const reached = lines.filter((l) => l.name === 'mission' && l.text.startsWith('reached'));
   assert.deepEqual(reached.map((l) => l.text.split(' (')[0]),
     ['reached waypoint 1 of 3', 'reached waypoint 2 of 3', 'reached waypoint 3 of 3']);
+  assert.deepEqual(lines.filter((l) => l.name === 'failsafe').map((l) => [l.text, l.tone]), [
+    ['battery_low: returning home', 'danger'],
+    ['battery_low overridden by the pilot', 'warn'],
+    ['failsafe ended', 'good'],
+  ]);
 });
 
 test('each event name says what happened in words', () => {
