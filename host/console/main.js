@@ -1,10 +1,12 @@
-// The console: connects, logs in, polls, and turns what the person does
-// into requests. What is shown lives in panels.js and plot.js; how requests
-// travel lives in protocol.js; what answers mean lives in vehicle.js.
+// The console: connects, logs in, polls, follows the events, and turns what
+// the person does into requests. What is shown lives in panels.js and
+// plot.js; how requests travel lives in protocol.js; what answers mean lives
+// in vehicle.js; what events mean, and their stream, in events.js.
 
+import { EVENT_LOG_MAX, EventStream, eventsUrl, Feed } from './events.js';
 import { Client, commandName, defaultUrl } from './protocol.js';
 import { Plot } from './plot.js';
-import { byId, CommandLine, Confirm, Header, Log, Login, StatePanel } from './panels.js';
+import { byId, CommandLine, Confirm, EventLog, Header, Log, Login, StatePanel } from './panels.js';
 import {
   altitudeOf, readCommands, readControlAnswer, readLogin, readMission, readState, setpointLine,
 } from './vehicle.js';
@@ -53,6 +55,13 @@ class Console {
     this.verdicts = new Map();
     /** The label a `control` request is out for, so that polls do not ask twice. */
     this.askingAbout = null;
+    /**
+     * The event log, on a second socket (`/events`) opened once the command
+     * socket is logged in, with the password that worked there. A control
+     * label reads as "this console" when `control` said it is ours.
+     */
+    this.eventLog = new EventLog(new Feed(EVENT_LOG_MAX, (label) => this.verdicts.get(label) ?? null));
+    this.events = new EventStream(eventsUrl(this.url));
     this.header.endpoint.textContent = this.url;
     this.header.showRole(null);
     this.#wire();
@@ -63,6 +72,8 @@ class Console {
   }
 
   #wire() {
+    this.events.addEventListener('status', (ev) => this.eventLog.connection(ev.detail.status, ev.detail.detail));
+    this.events.addEventListener('event', (ev) => this.#event(ev.detail));
     this.login.addEventListener('login', (ev) => this.#logIn(ev.detail));
     this.commandLine.addEventListener('send', (ev) => this.run(ev.detail));
     this.plot.addEventListener('pick', (ev) => this.#flyTo(ev.detail));
@@ -78,6 +89,7 @@ class Console {
     byId('clear-track').addEventListener('click', () => this.plot.clearTrack());
     this.header.logout.addEventListener('click', () => {
       this.password = null;
+      this.events.stop();
       this.client?.close();
     });
   }
@@ -126,7 +138,8 @@ class Console {
       this.mustLogin = false;
       this.header.showRole('open');
       this.#applyState(first);
-      await this.#afterLogin();
+      // No password: the events socket is admitted at once, and any message would close it.
+      await this.#afterLogin(null);
     } else if (this.password !== null) {
       await this.#logIn(this.password);
     } else {
@@ -136,6 +149,8 @@ class Console {
 
   #needLogin(message) {
     this.mustLogin = true;
+    // Logged out (or never in): the events are for whoever logs in next.
+    this.events.stop();
     this.header.showRole(null);
     this.login.show(message);
   }
@@ -177,12 +192,18 @@ class Console {
     if (this.mustLogin) {
       this.mustLogin = false;
       this.login.hide();
-      await this.#afterLogin();
+      await this.#afterLogin(password);
     }
   }
 
-  /** Reads what only changes now and then: the command names, the mission. */
-  async #afterLogin() {
+  /**
+   * Follows the events, logging in with `password` (null: the vehicle has
+   * none); the stream reopens itself, so a new command connection with the
+   * same password leaves it as it is. Then reads what only changes now
+   * and then: the command names, the mission.
+   */
+  async #afterLogin(password) {
+    this.events.start(password);
     try {
       const help = await this.client.request('help');
       if (help.ok) this.commandLine.setCommands(readCommands(help.answer));
@@ -191,6 +212,17 @@ class Console {
     }
     this.missionSupported = true;
     this.#pollMission();
+  }
+
+  /**
+   * An event from the stream: into the log; a pilot's label this page has
+   * no verdict on is asked about once (`control`), so that the log can say
+   * "this console" for its own.
+   */
+  #event(e) {
+    this.eventLog.add(this.eventLog.feed.accept(e));
+    const by = e?.event === 'control' && typeof e.by === 'string' ? e.by : null;
+    if (by !== null && !this.verdicts.has(by) && this.askingAbout !== by) this.#askControl(by);
   }
 
   #pollState() {
@@ -235,7 +267,10 @@ class Console {
    */
   #controlSaid(control) {
     this.control = control;
-    if (control !== null && control.you !== null) this.verdicts.set(control.by, control.you);
+    if (control !== null && control.you !== null && this.verdicts.get(control.by) !== control.you) {
+      this.verdicts.set(control.by, control.you);
+      this.eventLog.refreshControl();
+    }
     if (control !== null && !this.verdicts.has(control.by) && this.askingAbout !== control.by) {
       this.#askControl(control.by);
     }

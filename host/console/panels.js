@@ -2,6 +2,7 @@
 // confirmation dialog, command line and the log. They only show things and
 // report what the person does; main.js decides what to send.
 
+import { describe } from './events.js';
 import { commandName, retWords } from './protocol.js';
 import { altitudeOf } from './vehicle.js';
 
@@ -463,4 +464,85 @@ function json(answer) {
   pre.textContent = JSON.stringify(answer, null, 2);
   details.append(summary, pre);
   return details;
+}
+
+/**
+ * The event log: the lines of events.js's `Feed`, newest first, as many
+ * as it keeps; and the stream's state in its badge.
+ */
+export class EventLog {
+  /**
+   * The line each item shows, and what is known of its control labels
+   * (label → whether it is this console): kept per line, because the page
+   * forgets its verdicts with each new command connection (a new session,
+   * a new label), and a line once known to be about this console stays so.
+   */
+  #lines = new WeakMap();
+
+  constructor(feed) {
+    this.feed = feed;
+    this.list = byId('events');
+    this.conn = byId('events-conn');
+    byId('events-clear').addEventListener('click', () => {
+      this.feed.clear();
+      this.list.replaceChildren();
+    });
+  }
+
+  /** Shows lines the feed added, in the order they came. */
+  add(lines) {
+    for (const line of lines) {
+      const item = document.createElement('li');
+      item.className = line.kind === 'marker' ? 'event marker' : 'event';
+      item.dataset.tone = line.tone;
+      item.dataset.name = line.name;
+      if (line.seq !== null) item.dataset.seq = String(line.seq);
+      const name = document.createElement('span');
+      name.className = 'name';
+      name.textContent = line.kind === 'marker' ? `⚠ ${line.name}` : line.name;
+      const text = document.createElement('span');
+      text.className = 'text';
+      text.textContent = line.text;
+      item.append(eventTime(line.ts), name, text);
+      this.#lines.set(item, { line, you: new Map() });
+      if (line.name === 'control') this.#learn(item);
+      this.list.prepend(item);
+    }
+    while (this.list.children.length > this.feed.max) this.list.lastElementChild.remove();
+  }
+
+  /**
+   * Says the control lines again: a label seen in one may only now be
+   * known as this console's own (the page learns it from `control`).
+   */
+  refreshControl() {
+    for (const item of this.list.querySelectorAll('li[data-name="control"]')) this.#learn(item);
+  }
+
+  /** Takes what the page now knows of a control line's labels, and says the line with all it knows. */
+  #learn(item) {
+    const kept = this.#lines.get(item);
+    if (!kept?.line.event) return;
+    for (const label of [kept.line.event.by, kept.line.event.from]) {
+      const verdict = typeof label === 'string' ? this.feed.isYou(label) : null;
+      if (verdict !== null) kept.you.set(label, verdict);
+    }
+    item.querySelector('.text').textContent = describe(kept.line.event, (l) => kept.you.get(l) ?? null).text;
+  }
+
+  /** The stream's state: `connecting`, `connected`, `disconnected`, `refused` or `off`, with a detail. */
+  connection(status, detail = '') {
+    this.conn.textContent = detail ? `${status} · ${detail}` : status;
+    this.conn.dataset.status = status;
+    tone(this.conn, { connected: 'good', connecting: 'warn', off: 'neutral' }[status] ?? 'danger');
+  }
+}
+
+/** When an event happened, by the vehicle's clock (its `ts`), or now when it has none. */
+function eventTime(ts) {
+  const t = document.createElement('time');
+  const when = new Date(ts ?? Date.now());
+  t.dateTime = when.toISOString();
+  t.textContent = clock(when.getTime());
+  return t;
 }

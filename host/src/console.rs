@@ -6,7 +6,7 @@
 //! upgrade is answered here ([`handler`], which the daemon passes to the
 //! network layer, and [`respond`]), and never reaches the protocol.
 //! The page then opens a WebSocket to the same origin and is just another
-//! client of the protocol.
+//! client of the protocol, and a second one to `/events` for its event log.
 //!
 //! Only `GET` and `HEAD` exist. Every answer forbids sniffing and framing;
 //! the page's Content-Security-Policy admits scripts, styles and images from
@@ -21,7 +21,7 @@ use crate::net::Http;
 /// Content-Security-Policy of the page and its assets: everything from the
 /// page's own origin, nothing inline, no plugins, no framing. CSP level 3
 /// `'self'` in `connect-src` also admits `ws:`/`wss:` to the same host and
-/// port, which is the one WebSocket the page opens.
+/// port, where both WebSockets the page opens go (commands, `/events`).
 const PAGE_POLICY: &str = "default-src 'none'; script-src 'self'; style-src 'self'; \
     img-src 'self'; connect-src 'self'; base-uri 'none'; form-action 'none'; \
     frame-ancestors 'none'";
@@ -58,6 +58,7 @@ const ASSETS: &[Asset] = &[
     asset!("vehicle.js", JAVASCRIPT),
     asset!("plot.js", JAVASCRIPT),
     asset!("panels.js", JAVASCRIPT),
+    asset!("events.js", JAVASCRIPT),
     asset!("favicon.svg", "image/svg+xml"),
 ];
 
@@ -230,6 +231,7 @@ mod tests {
             ("/vehicle.js", "text/javascript; charset=utf-8"),
             ("/plot.js", "text/javascript; charset=utf-8"),
             ("/panels.js", "text/javascript; charset=utf-8"),
+            ("/events.js", "text/javascript; charset=utf-8"),
             ("/favicon.svg", "image/svg+xml"),
         ] {
             let r = respond(true, "GET", path);

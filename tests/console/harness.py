@@ -77,16 +77,18 @@ def lluavd_binary() -> str:
 
 
 class Lluavd:
-    """A running lluavd on 127.0.0.1 port 0 with its own data directory."""
+    """A running lluavd with its own data directory, on 127.0.0.1 port 0
+    unless `bind` names an address (a restart on the address of one that
+    stopped: the page reconnects to the same origin)."""
 
-    def __init__(self, binary: str, *args: str):
+    def __init__(self, binary: str, *args: str, bind: str = "127.0.0.1:0"):
         self._dir = tempfile.TemporaryDirectory(prefix="lluav-console-")
         self.stderr_path = pathlib.Path(self._dir.name) / "stderr.log"
         env = {k: v for k, v in os.environ.items() if k != "LLUAV_PASSWORD"}
         env["RUST_LOG"] = "info"
         self._stderr = open(self.stderr_path, "wb")
         self.proc = subprocess.Popen(
-            [binary, "--bind", "127.0.0.1:0", "--data-dir", str(pathlib.Path(self._dir.name) / "data"), *args],
+            [binary, "--bind", bind, "--data-dir", str(pathlib.Path(self._dir.name) / "data"), *args],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=self._stderr,
@@ -150,6 +152,32 @@ class Client:
                 return answer
             time.sleep(0.1)
         raise AssertionError(f"never {what}: {answer}")
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+class Subscriber:
+    """A plain reader of lluavd's `/events` stream beside the page, logged
+    in first as DESIGN.md says (the login's answer comes before any event)."""
+
+    def __init__(self, daemon: Lluavd, password: str | None):
+        self.ws = websocket.create_connection(daemon.ws_url + "events", timeout=WAIT, suppress_origin=True)
+        if password is not None:
+            self.ws.send(f"login {password}")
+            answer = json.loads(self.ws.recv())
+            assert answer["ret"] == 0, answer
+
+    def until(self, what: str, last) -> list[dict]:
+        """Every event up to and including the first for which `last(event)` holds."""
+        seen = []
+        deadline = time.monotonic() + WAIT
+        while time.monotonic() < deadline:
+            self.ws.settimeout(max(0.1, deadline - time.monotonic()))
+            seen.append(json.loads(self.ws.recv()))
+            if last(seen[-1]):
+                return seen
+        raise AssertionError(f"never {what}: {seen}")
 
     def close(self) -> None:
         self.ws.close()

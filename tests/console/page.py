@@ -77,6 +77,23 @@ class Page:
                 continue
         return out
 
+    def event_lines(self) -> list[dict]:
+        """The event log, oldest first: `kind` (`event` or `marker`), `name`,
+        `text` and `seq` (None for a marker without one) of each line."""
+        out = []
+        for item in self.driver.find_elements(By.CSS_SELECTOR, "#events > li"):
+            try:
+                seq = item.get_attribute("data-seq")
+                out.append({
+                    "kind": "marker" if "marker" in item.get_attribute("class").split() else "event",
+                    "name": item.get_attribute("data-name"),
+                    "text": item.find_element(By.CSS_SELECTOR, ".text").text,
+                    "seq": None if seq is None else int(seq),
+                })
+            except StaleElementReferenceException:
+                continue
+        return out[::-1]
+
     def wait(self, condition, what: str, timeout: float = WAIT):
         """Waits until `condition()` is truthy; fails saying `what` did not happen."""
         last = None
@@ -101,6 +118,8 @@ class Page:
         try:
             parts = [f"{i}: {self.text(i)!r}" for i in ("conn", "role", "age", "fsm", "armed", "last-result")]
             parts += [f"log: {e['text']!r}" for e in self.log_entries()[:4]]
+            parts += [f"events-conn: {self.text('events-conn')!r}"]
+            parts += [f"event: {e['name']} {e['text']!r} seq {e['seq']}" for e in self.event_lines()[-12:]]
             return "\n".join(parts)
         except Exception as e:  # the page itself may be gone
             return f"(page unreadable: {e})"

@@ -6,7 +6,9 @@ MAVLink backend in front of a pymavlink autopilot) for `login`, `help`,
 and `control_release` in a few situations (control free, held by the
 asking session or another, a failsafe and its override), and compares each answer's shape
 (member names, JSON types, nulls) with the copy kept in answers/, which
-js/vehicle.test.mjs reads the page's parser against. A backend that renames,
+js/vehicle.test.mjs reads the page's parser against. The events of a
+flight (`/events`: a mission, a take-over, a failsafe overridden, a
+landing) are kept the same way for js/events.test.mjs. A backend that renames,
 adds, drops or retypes a member fails here, until its new answer is
 captured:
 
@@ -22,7 +24,7 @@ import threading
 import time
 
 from conftest import PASSWORD
-from harness import ROOT, Client, Lluavd, free_udp_port
+from harness import ROOT, Client, Lluavd, Subscriber, free_udp_port
 
 sys.path.insert(0, str(ROOT / "tests" / "mavlink"))
 from fault_autopilot import FaultyAutopilot, mav  # noqa: E402
@@ -98,6 +100,39 @@ def test_the_simulators_failsafe_as_the_console_reads_it(binary):
         check("sim-state-failsafe", client.state_when("in failsafe", lambda s: s["failsafe"] is not None))
         check("sim-control_take-failsafe", client.ok("control_take failsafe"))
         check("sim-state-overridden", client.state_when("overridden", lambda s: s["failsafe"].endswith(" (overridden)")))
+    finally:
+        daemon.stop()
+
+
+def test_the_simulators_events_as_the_console_reads_them(binary):
+    daemon = Lluavd(binary, "--password", PASSWORD, "--sim-speed", "4")
+    try:
+        events = Subscriber(daemon, PASSWORD)
+        pilot = Client(daemon)
+        pilot.ok(f"login {PASSWORD}")
+        pilot.ok(MISSION_LINE)
+        pilot.ok("takeoff")
+        pilot.state_when("hovering", lambda s: s["fsm"] == "hover")
+        pilot.ok("mw_exec 1001:1,2,3")
+        flight = events.until("the mission completed", lambda e: e["event"] == "mission" and e["status"] == "completed")
+        # Another operator takes over and lands.
+        other = Client(daemon)
+        other.ok(f"login {PASSWORD}")
+        other.ok("control_take")
+        other.ok("land")
+        flight += events.until("disarmed", lambda e: e["event"] == "armed" and not e["armed"])
+        # Parameters change on the ground only: the battery then runs low
+        # soon after the next takeoff, a failsafe the pilot overrides.
+        for param in ("battery_drain:100", "low_battery:90"):
+            other.ok(f"set_param {param}")
+        other.ok("takeoff")
+        flight += events.until("a failsafe", lambda e: e["event"] == "failsafe" and e["reason"] is not None)
+        other.ok("control_take failsafe")
+        flight += events.until("the override", lambda e: e["event"] == "failsafe" and e["overridden"])
+        other.ok("land")
+        # The failsafe ends on the ground, disarmed, and says so.
+        flight += events.until("the failsafe's end", lambda e: e["event"] == "failsafe" and e["reason"] is None)
+        check("sim-events", flight)
     finally:
         daemon.stop()
 
