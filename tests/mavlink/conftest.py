@@ -76,6 +76,34 @@ class Client:
         self._stack.close()
 
 
+class Events:
+    """The daemon's `/events` stream, logged in: `until` reads events into
+    `seen` until a condition on them holds."""
+
+    def __init__(self, url):
+        self._stack = contextlib.ExitStack()
+        self.ws = self._stack.enter_context(connect(url.rstrip("/") + "/events", open_timeout=10, close_timeout=5))
+        self.ws.send(f"login {PASSWORD}")
+        reply = json.loads(self.ws.recv(timeout=10))
+        assert reply["ret"] == 0, reply
+        self.seen = []
+
+    def until(self, what, predicate, timeout=40.0):
+        end = time.monotonic() + timeout
+        while not predicate(self.seen):
+            left = end - time.monotonic()
+            if left <= 0:
+                raise AssertionError(f"timed out after {timeout} s waiting for {what}: {self.seen}")
+            try:
+                self.seen.append(json.loads(self.ws.recv(timeout=left)))
+            except TimeoutError:
+                pass
+        return self.seen
+
+    def close(self):
+        self._stack.close()
+
+
 class Daemon:
     """lluavd with --mavlink udpin on `port`, or at `address`; `extra`
     arguments appended (`--mavlink-system`, `--mavlink-signing-key`)."""
@@ -95,6 +123,7 @@ class Daemon:
             raise AssertionError(f"lluavd did not start: {line!r}: {(tmp / 'lluavd.log').read_text()[-600:]}")
         self.url = line.split()[-1]
         self.clients = []
+        self.streams = []
 
     def client(self, login=True, keepalive=True):
         c = Client(self.url, keepalive)
@@ -103,8 +132,13 @@ class Daemon:
             c.ok(f"login {PASSWORD}")
         return c
 
+    def events(self):
+        e = Events(self.url)
+        self.streams.append(e)
+        return e
+
     def stop(self):
-        for c in self.clients:
+        for c in self.clients + self.streams:
             try:
                 c.close()
             except Exception:

@@ -173,9 +173,15 @@ def test_a_mission_is_uploaded_with_global_coordinates(flight):
     assert [w["id"] for w in listed["waypoints"]] == [1, 7]
 
 
+def _mission(events):
+    return [(e["status"], e.get("wp"), e.get("index"), e.get("count"))
+            for e in events if e["event"] == "mission"]
+
+
 def test_mw_exec_flies_the_waypoints_and_reports_progress(flight):
     daemon, autopilot, _ = flight
     client = _client(daemon)
+    events = daemon.events()
     r = client.ok("mw_exec 42:1,7")
     assert r["wp_ids"] == [1, 7]
     run = wait_for("the run completed",
@@ -189,6 +195,18 @@ def test_mw_exec_flies_the_waypoints_and_reports_progress(flight):
     assert state["failsafe"] is None
     result = client.ok("dump_missionresult 42")["result"]
     assert result["status"] == "completed"
+    # The same progress as events, from the autopilot's MISSION_ITEM_REACHED,
+    # in order and once each (MAVSDK, like PX4, also sends MISSION_CURRENT).
+    seen = events.until("the run told completed", lambda s: ("completed", None, None, None) in _mission(s))
+    assert _mission(seen) == [("started", None, None, None), ("reached", 1, 1, 2),
+                              ("reached", 7, 2, 2), ("completed", None, None, None)]
+    seqs = [e["seq"] for e in seen]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), seqs
+    assert {"event": "fsm", "to": "mission"}.items() <= next(
+        e for e in seen if e["event"] == "fsm" and e["to"] == "mission").items()
+    # The hold at the mission's end is the FSM's, not the run's: nothing more.
+    assert _mission(events.until("the hold told", lambda s: any(
+        e["event"] == "fsm" and e["from"] == "mission" for e in s))) == _mission(seen)
 
 
 def test_land_then_disarm(flight):

@@ -1,22 +1,45 @@
 //! Missions on the MAVLink vehicle: the submitted missions (DESIGN.md's
 //! mission JSON, NED), the mission items they become (global, from the
 //! vehicle's home), what is on the autopilot now, and the progress of
-//! the run `mw_exec` started, from `MISSION_CURRENT` and
-//! `MISSION_ITEM_REACHED`.
+//! the run `mw_exec` started, from `MISSION_CURRENT`,
+//! `MISSION_ITEM_REACHED` and the heartbeat's mode, told as `mission`
+//! events (DESIGN.md, "Events"; `started` is told by `mw_exec` once
+//! `MISSION_START` is answered).
+//!
+//! What autopilots say differs, and the run's progress is read so that
+//! each of them tells the same story once:
+//! - PX4 repeats its last `MISSION_ITEM_REACHED` (ten more times at its
+//!   slow rate), and ArduPilot may send one for any item it completes:
+//!   an item is told reached once, only ahead of the last one told.
+//! - PX4's repeats outlive a run: a run started soon after another hears
+//!   the old run's last item. That item counts in the new run only once
+//!   `MISSION_CURRENT` showed the vehicle got that far in it.
+//! - A run ends `completed` when its last item is reached, `aborted` when
+//!   the vehicle stops flying it before: another mode, disarmed, another
+//!   run, another vehicle. PX4 enters its hold at a mission's end; a hold
+//!   before the last item was heard counts as the end of the run only
+//!   after [`HOLD_GRACE_MS`], time for the last item's `reached` (or one
+//!   of its repeats) to come over a lossy radio link.
 
 use std::collections::VecDeque;
 
 use ::mavlink::dialects::ardupilotmega::{MISSION_ITEM_INT_DATA, MavCmd, MavFrame, MavMessage};
 use lluav_core::Fields;
 
-use super::autopilot::Flavour;
+use super::autopilot::{Flavour, Phase};
 use super::error::MavError;
 use super::geo::Global;
 use super::protocol::mission_item;
+use crate::events::{Event, MissionStatus};
 use crate::vehicle::Ned;
 
 /// Most missions kept; the oldest go first, never the one running.
 const MAX_KEPT: usize = 64;
+/// How long the autopilot may hold before a run's last item was heard
+/// reached, ms, before the run counts as aborted: PX4 enters its hold
+/// as it reaches the last item, and repeats the `MISSION_ITEM_REACHED`
+/// a lost packet took away within a second or two.
+pub const HOLD_GRACE_MS: i64 = 3000;
 
 /// A waypoint of a submitted mission.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -57,6 +80,19 @@ pub enum Status {
     Running,
     /// The last waypoint was reached.
     Completed,
+    /// The vehicle stopped flying it before its last waypoint (the
+    /// simulator's word for a run ended without `abort_report`).
+    Interrupted,
+}
+
+impl Status {
+    fn name(self) -> &'static str {
+        match self {
+            Status::Running => "running",
+            Status::Completed => "completed",
+            Status::Interrupted => "interrupted",
+        }
+    }
 }
 
 /// The run `mw_exec` started.
@@ -64,12 +100,58 @@ pub enum Status {
 pub struct Run {
     /// The waypoints it flies.
     pub plan: OnAutopilot,
-    /// Waypoints reached so far.
+    /// Waypoints reached so far, in the order told.
     pub reached: Vec<u32>,
     /// The waypoint the autopilot flies to now.
     pub current: Option<u32>,
     /// How it goes.
     pub status: Status,
+    /// The 1-based index of the last item told reached; 0 before any.
+    told: u32,
+    /// Whether the heartbeat showed the vehicle flying it (armed, in the
+    /// mission mode): until then the mode it leaves says nothing of it.
+    flown: bool,
+    /// Since when the autopilot holds before the last item was heard
+    /// reached, ms.
+    held_ms: Option<i64>,
+    /// The item the last `MISSION_ITEM_REACHED` before the run named: a
+    /// repeat of it is the last run's until `MISSION_CURRENT` shows this
+    /// run got that far.
+    stale: Option<u16>,
+    /// Whether the autopilot accepted `MISSION_START`: until then its
+    /// progress waits here, told after `started` (a run that never
+    /// started tells nothing).
+    confirmed: bool,
+    unconfirmed: Vec<Event>,
+}
+
+impl Run {
+    fn new(plan: OnAutopilot, stale: Option<u16>) -> Run {
+        Run {
+            plan,
+            reached: Vec::new(),
+            current: None,
+            status: Status::Running,
+            told: 0,
+            flown: false,
+            held_ms: None,
+            stale,
+            confirmed: false,
+            unconfirmed: Vec::new(),
+        }
+    }
+
+    /// The 1-based index in the run of mission item `seq`, and its
+    /// waypoint's id.
+    fn item(&self, seq: u16) -> Option<(u32, u32)> {
+        let i = usize::from(seq.checked_sub(self.plan.first_seq)?);
+        let id = *self.plan.wp_ids.get(i)?;
+        Some((u32::try_from(i + 1).ok()?, id))
+    }
+
+    fn count(&self) -> u32 {
+        u32::try_from(self.plan.wp_ids.len()).unwrap_or(u32::MAX)
+    }
 }
 
 /// The missions the vehicle knows of.
@@ -80,6 +162,10 @@ pub struct Missions {
     on_autopilot: Option<OnAutopilot>,
     /// The latest run.
     run: Option<Run>,
+    /// The item the latest `MISSION_ITEM_REACHED` named, run or not.
+    last_reached: Option<u16>,
+    /// The runs' progress to be told, in order.
+    news: Vec<Event>,
 }
 
 impl Missions {
@@ -127,26 +213,98 @@ impl Missions {
         self.on_autopilot.as_ref()
     }
 
-    /// A run of `plan` starts.
+    /// A run of `plan` starts: the run it replaces, if it still ran, is
+    /// aborted.
     pub fn start_run(&mut self, plan: OnAutopilot) {
-        self.run = Some(Run {
-            plan,
-            reached: Vec::new(),
-            current: None,
-            status: Status::Running,
-        });
+        self.abort();
+        self.run = Some(Run::new(plan, self.last_reached));
     }
 
     /// Another vehicle: it holds none of lluavd's missions and flies no
-    /// run. The submitted missions stay, to be uploaded again.
+    /// run (the one running is aborted). The submitted missions stay, to
+    /// be uploaded again.
     pub fn new_vehicle(&mut self) {
+        self.abort();
         self.on_autopilot = None;
+        self.run = None;
+        self.last_reached = None;
+    }
+
+    /// The run did not start after all (its `started` was never told).
+    pub fn drop_run(&mut self) {
         self.run = None;
     }
 
-    /// The run did not start after all.
-    pub fn drop_run(&mut self) {
-        self.run = None;
+    /// Ends the run, if it still runs, before its last waypoint.
+    fn abort(&mut self) {
+        if let Some(run) = self.run.as_mut().filter(|r| r.status == Status::Running) {
+            run.status = Status::Interrupted;
+            let ext_id = run.plan.ext_id;
+            tracing::info!(ext_id, reached = run.reached.len(), "mission run aborted");
+            self.tell(ext_id, MissionStatus::Aborted);
+        }
+    }
+
+    fn tell(&mut self, ext_id: u32, status: MissionStatus) {
+        let event = Event::Mission { ext_id, status };
+        match self.run.as_mut() {
+            Some(run) if !run.confirmed => run.unconfirmed.push(event),
+            _ => self.news.push(event),
+        }
+    }
+
+    /// The autopilot accepted the run's `MISSION_START`: it is told
+    /// `started`, then whatever progress came before the answer did.
+    pub fn started(&mut self) {
+        if let Some(run) = self.run.as_mut().filter(|r| !r.confirmed) {
+            run.confirmed = true;
+            self.news.push(Event::Mission {
+                ext_id: run.plan.ext_id,
+                status: MissionStatus::Started,
+            });
+            self.news.append(&mut run.unconfirmed);
+        }
+    }
+
+    /// The runs' progress since the last call, in order.
+    pub fn drain_news(&mut self, out: &mut Vec<Event>) {
+        out.append(&mut self.news);
+    }
+
+    /// Takes in the heartbeat's mode at `now_ms`: whether the vehicle
+    /// flies a mission (armed, in the mission mode) or holds in the mode
+    /// PX4 enters at a mission's end. A run the vehicle flew, then left
+    /// before its last waypoint, is aborted (after [`HOLD_GRACE_MS`] in
+    /// that hold); a disarmed vehicle flies no run.
+    pub fn observe_mode(&mut self, flying_mission: bool, holding: bool, armed: bool, now_ms: i64) {
+        let Some(run) = self.run.as_mut().filter(|r| r.status == Status::Running) else {
+            return;
+        };
+        if flying_mission {
+            run.flown = true;
+            run.held_ms = None;
+        } else if !armed || (run.flown && !holding) {
+            self.abort();
+        } else if run.flown {
+            run.held_ms.get_or_insert(now_ms);
+        }
+    }
+
+    /// Aborts a run held at `now_ms` for [`HOLD_GRACE_MS`] before its
+    /// last waypoint was heard reached.
+    pub fn expire(&mut self, now_ms: i64) {
+        if self.hold_ends_ms().is_some_and(|end| end <= now_ms) {
+            self.abort();
+        }
+    }
+
+    /// When a hold before the last waypoint ends the run, ms.
+    pub fn hold_ends_ms(&self) -> Option<i64> {
+        self.run
+            .as_ref()
+            .filter(|r| r.status == Status::Running)
+            .and_then(|r| r.held_ms)
+            .map(|t| t.saturating_add(HOLD_GRACE_MS))
     }
 
     /// The waypoints `wp_ids` of mission `ext_id`, in that order.
@@ -188,26 +346,45 @@ impl Missions {
         self.submitted.back()
     }
 
-    /// Takes in mission progress from the autopilot.
+    /// Takes in mission progress from the autopilot: each item of the
+    /// run told reached once, in order, and the run completed with its
+    /// last.
     pub fn observe(&mut self, msg: &MavMessage) {
-        let Some(run) = self.run.as_mut() else { return };
-        let wp_at = |seq: u16| {
-            let i = usize::from(seq.checked_sub(run.plan.first_seq)?);
-            run.plan.wp_ids.get(i).copied()
-        };
-        match msg {
-            MavMessage::MISSION_CURRENT(c) => run.current = wp_at(c.seq),
+        let seq = match msg {
             MavMessage::MISSION_ITEM_REACHED(r) => {
-                if let Some(id) = wp_at(r.seq)
-                    && !run.reached.contains(&id)
-                {
-                    run.reached.push(id);
-                    if run.plan.wp_ids.last() == Some(&id) {
-                        run.status = Status::Completed;
+                self.last_reached = Some(r.seq);
+                r.seq
+            }
+            MavMessage::MISSION_CURRENT(c) => {
+                if let Some(run) = self.run.as_mut() {
+                    run.current = run.item(c.seq).map(|(_, id)| id);
+                    if run.stale.is_some_and(|s| c.seq >= s) {
+                        run.stale = None;
                     }
                 }
+                return;
             }
-            _ => {}
+            _ => return,
+        };
+        let Some(run) = self.run.as_mut().filter(|r| r.status == Status::Running) else {
+            return;
+        };
+        if run.stale == Some(seq) {
+            return;
+        }
+        let Some((index, wp)) = run.item(seq).filter(|&(index, _)| index > run.told) else {
+            return;
+        };
+        run.told = index;
+        run.reached.push(wp);
+        let (ext_id, count) = (run.plan.ext_id, run.count());
+        let last = index == count;
+        if last {
+            run.status = Status::Completed;
+        }
+        self.tell(ext_id, MissionStatus::Reached { wp, index, count });
+        if last {
+            self.tell(ext_id, MissionStatus::Completed);
         }
     }
 
@@ -272,13 +449,19 @@ fn write_run(run: &Run, o: &mut Fields<'_>) {
         Some(c) => o.u64("current", c.into()),
         None => o.null("current"),
     };
-    o.str(
-        "status",
-        match run.status {
-            Status::Running => "running",
-            Status::Completed => "completed",
-        },
-    );
+    o.str("status", run.status.name());
+}
+
+/// Whether the heartbeat's `custom_mode` is the mode an autopilot of
+/// `flavour` enters at a mission's end on its own: PX4's hold. (ArduCopter
+/// stays in AUTO at the end; any other mode is a change of plan.)
+pub fn end_of_mission_hold(flavour: Flavour, custom_mode: u32) -> bool {
+    flavour != Flavour::ArduPilot && flavour.mode_name(custom_mode) == "AUTO.LOITER"
+}
+
+/// Whether the heartbeat's `custom_mode` flies a mission.
+pub fn mission_mode(flavour: Flavour, custom_mode: u32) -> bool {
+    flavour.phase(custom_mode) == Phase::Mission
 }
 
 /// The mission items for `waypoints`: `MAV_CMD_NAV_WAYPOINT`s at the
@@ -363,35 +546,171 @@ mod tests {
         assert_eq!(items[0].frame, MavFrame::MAV_FRAME_GLOBAL_INT);
     }
 
+    use ::mavlink::dialects::ardupilotmega::{MISSION_CURRENT_DATA, MISSION_ITEM_REACHED_DATA};
+
+    fn reached(seq: u16) -> MavMessage {
+        MavMessage::MISSION_ITEM_REACHED(MISSION_ITEM_REACHED_DATA { seq })
+    }
+
+    fn current(seq: u16) -> MavMessage {
+        MavMessage::MISSION_CURRENT(MISSION_CURRENT_DATA { seq })
+    }
+
+    /// Mission 7's run of waypoints 4 and 9 at items 1 and 2, started.
+    fn running() -> Missions {
+        let mut m = Missions::default();
+        m.start_run(OnAutopilot {
+            ext_id: 7,
+            wp_ids: vec![4, 9],
+            first_seq: 1,
+        });
+        m.started();
+        m
+    }
+
+    fn told(m: &mut Missions) -> Vec<MissionStatus> {
+        let mut out = Vec::new();
+        m.drain_news(&mut out);
+        out.into_iter()
+            .map(|e| match e {
+                Event::Mission { ext_id: 7, status } => status,
+                other => panic!("not mission 7's: {other:?}"),
+            })
+            .collect()
+    }
+
+    const fn at(wp: u32, index: u32) -> MissionStatus {
+        MissionStatus::Reached { wp, index, count: 2 }
+    }
+
     #[test]
     fn progress_maps_mission_items_back_to_waypoint_ids() {
-        let mut m = Missions {
-            run: Some(Run {
-                plan: OnAutopilot {
-                    ext_id: 7,
-                    wp_ids: vec![4, 9],
-                    first_seq: 1,
-                },
-                reached: vec![],
-                current: None,
-                status: Status::Running,
-            }),
-            ..Missions::default()
-        };
-        use ::mavlink::dialects::ardupilotmega::{MISSION_CURRENT_DATA, MISSION_ITEM_REACHED_DATA};
-        m.observe(&MavMessage::MISSION_CURRENT(MISSION_CURRENT_DATA { seq: 2 }));
-        m.observe(&MavMessage::MISSION_ITEM_REACHED(MISSION_ITEM_REACHED_DATA {
-            seq: 1,
-        }));
+        let mut m = running();
+        m.observe(&current(2));
+        m.observe(&reached(1));
         let run = m.run.as_ref().unwrap();
         assert_eq!(
             (run.current, run.reached.as_slice(), run.status),
             (Some(9), &[4][..], Status::Running)
         );
-        m.observe(&MavMessage::MISSION_ITEM_REACHED(MISSION_ITEM_REACHED_DATA {
-            seq: 2,
-        }));
+        m.observe(&reached(2));
         assert_eq!(m.run.as_ref().unwrap().status, Status::Completed);
+        assert_eq!(
+            told(&mut m),
+            [
+                MissionStatus::Started,
+                at(4, 1),
+                at(9, 2),
+                MissionStatus::Completed
+            ]
+        );
+    }
+
+    #[test]
+    fn repeated_and_older_items_are_told_once() {
+        let mut m = running();
+        told(&mut m);
+        // PX4 repeats its last MISSION_ITEM_REACHED; an item behind the
+        // last one told (ArduPilot's for a completed one) says nothing new.
+        for msg in [reached(1), reached(1), reached(0), reached(1)] {
+            m.observe(&msg);
+        }
+        assert_eq!(told(&mut m), [at(4, 1)]);
+    }
+
+    #[test]
+    fn the_last_runs_repeats_count_only_once_this_run_got_that_far() {
+        let mut m = running();
+        m.observe(&reached(1));
+        m.observe(&reached(2));
+        told(&mut m);
+        // Run again at once: PX4 still repeats item 2.
+        m.start_run(OnAutopilot {
+            ext_id: 7,
+            wp_ids: vec![4, 9],
+            first_seq: 1,
+        });
+        m.started();
+        m.observe(&reached(2));
+        assert_eq!(told(&mut m), [MissionStatus::Started]);
+        m.observe(&current(1));
+        m.observe(&reached(1));
+        m.observe(&current(2));
+        m.observe(&reached(2));
+        assert_eq!(told(&mut m), [at(4, 1), at(9, 2), MissionStatus::Completed]);
+    }
+
+    #[test]
+    fn a_run_left_before_its_end_is_aborted() {
+        // Another mode (a pilot, a return) after flying it.
+        let mut m = running();
+        m.observe_mode(true, false, true, 0);
+        m.observe(&reached(1));
+        m.observe_mode(false, false, true, 100);
+        assert_eq!(
+            told(&mut m),
+            [MissionStatus::Started, at(4, 1), MissionStatus::Aborted]
+        );
+        // Not before it was flown: the mode it starts from says nothing.
+        let mut m = running();
+        m.observe_mode(false, false, true, 0);
+        assert_eq!(told(&mut m), [MissionStatus::Started]);
+        // Disarmed.
+        m.observe_mode(false, false, false, 10);
+        assert_eq!(told(&mut m), [MissionStatus::Aborted]);
+        // Another run replaces it.
+        let mut m = running();
+        m.start_run(OnAutopilot {
+            ext_id: 7,
+            wp_ids: vec![4],
+            first_seq: 1,
+        });
+        assert_eq!(told(&mut m), [MissionStatus::Started, MissionStatus::Aborted]);
+    }
+
+    #[test]
+    fn a_hold_before_the_last_item_ends_the_run_only_after_its_grace() {
+        let mut m = running();
+        m.observe_mode(true, false, true, 0);
+        m.observe(&reached(1));
+        m.observe_mode(false, true, true, 1000);
+        m.expire(1000 + HOLD_GRACE_MS - 1);
+        assert_eq!(told(&mut m), [MissionStatus::Started, at(4, 1)]);
+        // The last item's reached, late over a lossy link: completed.
+        let mut late = running();
+        late.observe_mode(true, false, true, 0);
+        late.observe_mode(false, true, true, 1000);
+        late.observe(&reached(2));
+        late.expire(1000 + HOLD_GRACE_MS);
+        assert_eq!(
+            told(&mut late),
+            [MissionStatus::Started, at(9, 2), MissionStatus::Completed]
+        );
+        // Nothing came: aborted.
+        m.expire(1000 + HOLD_GRACE_MS);
+        assert_eq!(told(&mut m), [MissionStatus::Aborted]);
+    }
+
+    #[test]
+    fn a_run_whose_start_was_refused_tells_nothing_and_one_accepted_late_tells_in_order() {
+        let mut m = Missions::default();
+        let plan = OnAutopilot {
+            ext_id: 7,
+            wp_ids: vec![4, 9],
+            first_seq: 1,
+        };
+        m.start_run(plan.clone());
+        m.observe(&reached(1));
+        m.drop_run();
+        assert_eq!(told(&mut m), []);
+        // Progress that came before MISSION_START's answer follows `started`
+        // (item 1 counts once MISSION_CURRENT shows this run got there).
+        m.start_run(plan);
+        m.observe(&current(1));
+        m.observe(&reached(1));
+        assert_eq!(told(&mut m), []);
+        m.started();
+        assert_eq!(told(&mut m), [MissionStatus::Started, at(4, 1)]);
     }
 
     #[test]

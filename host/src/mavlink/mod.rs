@@ -64,6 +64,21 @@
 //! autopilot's geofence and RTL altitude are the autopilot's, and lluavd
 //! cannot clip them.
 //!
+//! # Events
+//!
+//! What the autopilot says is told as events (DESIGN.md, "Events"; `news`
+//! compares what the vehicle looks like after every packet with what was
+//! told last): `link` up and lost, `fsm` and `armed` from the heartbeat
+//! (and `state.fsm`'s rules), `failsafe` as `authority` reads it,
+//! `battery` crossing 20 %, each 10 % below and 0, `STATUSTEXT`s of
+//! severity WARNING or graver as `log` (at most 20 at once and 2 a second
+//! more: an autopilot repeats its warnings; lluavd's log keeps every one),
+//! and the run's `mission` progress (`mission`: `started` once
+//! `MISSION_START` is answered, each waypoint `reached` once and in order
+//! from `MISSION_ITEM_REACHED` and `MISSION_CURRENT`, `completed` with the
+//! last, `aborted` when the vehicle stops flying it before). The daemon
+//! takes them at every tick (50 ms).
+//!
 //! # The radio link
 //!
 //! lluavd follows one autopilot (`follow`): the system of
@@ -106,6 +121,7 @@ mod follow;
 pub mod geo;
 mod link;
 mod mission;
+mod news;
 mod ops;
 mod protocol;
 mod signing;
@@ -755,7 +771,16 @@ impl Vehicle for MavlinkVehicle {
         })
     }
 
-    fn tick(&mut self, _dt: Duration) {}
+    fn tick(&mut self, _dt: Duration) {
+        // What time alone changes: the link lost, a takeoff's grace over,
+        // a run's hold past its grace.
+        let now = self.link.now_ms();
+        self.link.with(|k| k.look(now));
+    }
+
+    fn drain_events(&mut self, out: &mut Vec<crate::events::Event>) {
+        self.link.with(|k| k.drain_events(out));
+    }
 
     fn link_up(&self, now_ms: i64) -> Option<bool> {
         Some(self.link.with(|k| k.link_up(now_ms)))

@@ -249,6 +249,8 @@ pub async fn exec(
         link.with(|k| k.missions_mut().drop_run());
         return Err(e);
     }
+    let now = link.now_ms();
+    link.with(|k| k.mission_started(now));
     Ok(answer)
 }
 

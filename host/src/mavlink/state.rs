@@ -18,7 +18,8 @@ use super::answer::{Answer as _, Following, write_pose};
 use super::authority::{Asked, Look, Watch};
 use super::error::MavError;
 use super::follow::{Admit, Follow, Wanted};
-use super::mission::Missions;
+use super::mission::{self, Missions};
+use super::news::{News, Seen};
 use super::protocol::Target;
 use super::telemetry::{Status, Telemetry};
 
@@ -63,6 +64,8 @@ pub struct Known {
     foreign: u64,
     /// The failsafes.
     watch: Watch,
+    /// What is told as events.
+    news: News,
 }
 
 impl Known {
@@ -102,6 +105,11 @@ impl Known {
         };
         self.tel.observe(msg);
         self.missions.observe(msg);
+        match msg {
+            MavMessage::HEARTBEAT(_) => self.observe_mode(now_ms),
+            MavMessage::STATUSTEXT(s) => self.news.statustext(s, now_ms),
+            _ => {}
+        }
         // Climbing, or disarmed after `takeoff` answered (the autopilot
         // gave up, or was landed or disarmed by other means): the
         // telemetry tells again, so nothing streams to a vehicle on the
@@ -113,7 +121,57 @@ impl Known {
             self.took_off_ms = None;
         }
         self.judge(now_ms);
+        self.notice(now_ms);
         receipt
+    }
+
+    /// The heartbeat's mode, for the run's progress: flying the mission,
+    /// holding at its end, or doing something else.
+    fn observe_mode(&mut self, now_ms: i64) {
+        let (Some(flavour), Some(mode)) = (self.tel.flavour(), self.tel.custom_mode()) else {
+            return;
+        };
+        let armed = self.tel.armed();
+        self.missions.observe_mode(
+            armed && mission::mission_mode(flavour, mode),
+            mission::end_of_mission_hold(flavour, mode),
+            armed,
+            now_ms,
+        );
+    }
+
+    /// Queues an event for each change since the last look.
+    fn notice(&mut self, now_ms: i64) {
+        let seen = Seen {
+            link_up: self.link_up(now_ms),
+            fsm: self.fsm(now_ms),
+            armed: self.tel.armed(),
+            failsafe: self.failsafe(),
+            battery: self.tel.battery_percent().map(f64::from),
+        };
+        let mut progress = Vec::new();
+        self.missions.drain_news(&mut progress);
+        self.news.notice(&seen, progress);
+    }
+
+    /// Looks again at what time alone changes at `now_ms` (the link lost,
+    /// a takeoff's grace over, a run held past its grace) and queues its
+    /// events.
+    pub fn look(&mut self, now_ms: i64) {
+        self.missions.expire(now_ms);
+        self.notice(now_ms);
+    }
+
+    /// Hands every queued event to `out`, oldest first.
+    pub fn drain_events(&mut self, out: &mut Vec<crate::events::Event>) {
+        self.news.drain(out);
+    }
+
+    /// The autopilot accepted the run's `MISSION_START` at `now_ms`: it is
+    /// told started (and whatever progress came before the answer).
+    pub fn mission_started(&mut self, now_ms: i64) {
+        self.missions.started();
+        self.notice(now_ms);
     }
 
     /// Looks at the autopilot for failsafes. One that takes the vehicle

@@ -242,7 +242,7 @@ impl Telemetry {
     }
 
     /// Battery charge, percent, if the autopilot reports one.
-    fn battery_percent(&self) -> Option<i8> {
+    pub fn battery_percent(&self) -> Option<i8> {
         let from_status = self.battery.as_ref().map(|b| b.battery_remaining);
         let from_sys = self.sys_status.as_ref().map(|s| s.battery_remaining);
         from_status.into_iter().chain(from_sys).find(|p| *p >= 0)
