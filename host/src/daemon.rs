@@ -28,7 +28,7 @@ use crate::mavlink::{MavlinkConfig, MavlinkVehicle};
 use crate::net::{self, Echo, Handler};
 use crate::notify::{self, Counted, Notifier, Status};
 use crate::onboard::Onboard;
-use crate::recent_log::RecentLog;
+use crate::recent_log::{RecentLog, Warning};
 use crate::sim::{SimConfig, Simulator};
 use crate::uplink::{self, StatusCell, Uplink};
 use crate::vehicle::{Vehicle, Wait};
@@ -367,6 +367,8 @@ pub struct Daemon<V> {
     uplink: Option<(Uplink, Option<uplink::Store>)>,
     /// What happens goes out through here: `/events`, the uplink.
     outbox: Arc<Outbox>,
+    /// The log whose warnings and errors are told as events.
+    log: Option<RecentLog>,
 }
 
 /// `lluavd`'s default backend: the companion computer and the simulated
@@ -394,7 +396,7 @@ impl Daemon<Simulator> {
         } else {
             let companion = CompanionConfig {
                 data_dir: settings.data_dir.clone(),
-                log,
+                log: log.clone(),
                 password_pinned: settings.password.is_some(),
                 uplink: Some(report(&status)),
             };
@@ -406,6 +408,7 @@ impl Daemon<Simulator> {
         };
         Daemon::with_vehicle(settings, onboard)
             .await?
+            .telling(log)
             .uplinked(settings, status)
     }
 }
@@ -421,7 +424,7 @@ impl Daemon<MavlinkVehicle> {
         let status = StatusCell::new(settings.uplink.is_some());
         let companion = Companion::open(CompanionConfig {
             data_dir: settings.data_dir.clone(),
-            log,
+            log: log.clone(),
             password_pinned: settings.password.is_some(),
             uplink: Some(report(&status)),
         })
@@ -444,6 +447,7 @@ impl Daemon<MavlinkVehicle> {
                 })?;
         Daemon::with_vehicle(settings, Some(Onboard::new(companion, vehicle)))
             .await?
+            .telling(log)
             .uplinked(settings, status)
     }
 }
@@ -482,7 +486,14 @@ impl<V: Vehicle> Daemon<V> {
             notifier: None,
             uplink: None,
             outbox: Arc::new(Outbox::new(Bus::fresh())),
+            log: None,
         })
+    }
+
+    /// Tells the warnings and errors of `log` as `log` events.
+    pub fn telling(mut self, log: RecentLog) -> Self {
+        self.log = Some(log);
+        self
     }
 
     /// Adds the uplink of `settings` (not in echo mode), reporting its
@@ -537,6 +548,9 @@ impl<V: Vehicle> Daemon<V> {
             }
             Mode::Protocol(server) => Arc::new(Mutex::new(*server)),
         };
+        let teller = self
+            .log
+            .map(|log| tokio::spawn(tell(log.tell_warnings(), Arc::clone(&self.outbox))));
         let wake = Arc::new(Notify::new());
         let ticker = tokio::spawn(tick(
             Arc::clone(&server),
@@ -575,7 +589,7 @@ impl<V: Vehicle> Daemon<V> {
             let _ = uplink.await;
         }
         ticker.abort();
-        if let Some(task) = keep_alive {
+        for task in keep_alive.into_iter().chain(teller) {
             task.abort();
         }
         let flushed = tokio::task::spawn_blocking(move || {
@@ -671,6 +685,13 @@ fn tls_acceptor(settings: &Settings, files: &TlsFiles) -> Result<tokio_rustls::T
 fn report(status: &StatusCell) -> UplinkReport {
     let status = status.clone();
     UplinkReport::new(move || status.get().as_str())
+}
+
+/// Publishes the log's warnings and errors as `log` events.
+async fn tell(mut warnings: tokio::sync::mpsc::Receiver<Warning>, outbox: Arc<Outbox>) {
+    while let Some(Warning { level, msg, ts }) = warnings.recv().await {
+        outbox.stage(None, [Event::Log { level, msg }], ts);
+    }
 }
 
 /// Advances the vehicle while it does something (as often as it asks,

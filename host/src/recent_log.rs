@@ -2,15 +2,18 @@
 //!
 //! A [`RecentLog`] is a bounded ring of formatted lines shared by clones.
 //! [`RecentLog::layer`] is a tracing layer that formats every event into
-//! it, so whatever the daemon logs is what `showmsg` shows.
+//! it, so whatever the daemon logs is what `showmsg` shows. Its warnings
+//! and errors are also told as `log` events (DESIGN.md, "Events") once
+//! the daemon asks for them ([`RecentLog::tell_warnings`]).
 
 use std::collections::VecDeque;
 use std::fmt::{self, Write as _};
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
+use tokio::sync::mpsc;
 use tracing::field::{Field, Visit};
-use tracing::{Event, Subscriber};
+use tracing::{Event, Level, Subscriber};
 use tracing_subscriber::Layer;
 use tracing_subscriber::layer::Context;
 
@@ -24,6 +27,54 @@ pub struct RecentLog {
 struct Ring {
     lines: VecDeque<String>,
     capacity: usize,
+    tap: Option<Tap>,
+}
+
+/// Warnings and errors told at once, and how many more per second: a
+/// part that repeats a warning (an autopilot's pre-arm checks every 30 s,
+/// a flapping link) would otherwise crowd every other event out of the
+/// subscribers' queues. The log itself keeps every line.
+const TELL_BURST: f64 = 20.0;
+const TELL_PER_S: f64 = 2.0;
+/// Warnings waiting for the daemon to publish them.
+const TELL_QUEUE: usize = 64;
+
+/// A warning or error, as a `log` event tells it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Warning {
+    /// `warning` or `error`.
+    pub level: &'static str,
+    /// The line as `showmsg` shows it after its time, level and target:
+    /// the message and its fields.
+    pub msg: String,
+    /// When it was logged, ms since the Unix epoch.
+    pub ts: i64,
+}
+
+/// Where warnings go as events, within a budget. Sent without waiting
+/// (the layer runs inside whatever logged, perhaps under a lock the
+/// publisher needs): a full queue drops the warning from the events, never
+/// from the log.
+#[derive(Debug)]
+struct Tap {
+    tx: mpsc::Sender<Warning>,
+    tokens: f64,
+    filled: Instant,
+    withheld: u64,
+}
+
+impl Tap {
+    fn tell(&mut self, warning: Warning, now: Instant) {
+        let since = now.saturating_duration_since(self.filled).as_secs_f64();
+        self.filled = now;
+        self.tokens = (self.tokens + since * TELL_PER_S).min(TELL_BURST);
+        if self.tokens >= 1.0 && self.tx.try_send(warning).is_ok() {
+            self.tokens -= 1.0;
+        } else {
+            // Counted, not logged: a warning about warnings would be one more.
+            self.withheld = self.withheld.saturating_add(1);
+        }
+    }
 }
 
 impl RecentLog {
@@ -34,17 +85,47 @@ impl RecentLog {
             inner: Arc::new(Mutex::new(Ring {
                 lines: VecDeque::with_capacity(capacity.min(4096)),
                 capacity,
+                tap: None,
             })),
         }
     }
 
     /// Appends a line, dropping the oldest one when the buffer is full.
     pub fn push(&self, line: String) {
+        self.record(line, None);
+    }
+
+    /// From now on, warnings and errors logged are also sent, within a
+    /// budget (20 at once, 2 a second more), to the receiver returned: the
+    /// daemon publishes them as `log` events. A second call replaces the
+    /// first receiver.
+    pub fn tell_warnings(&self) -> mpsc::Receiver<Warning> {
+        let (tx, rx) = mpsc::channel(TELL_QUEUE);
+        self.lock().tap = Some(Tap {
+            tx,
+            tokens: TELL_BURST,
+            filled: Instant::now(),
+            withheld: 0,
+        });
+        rx
+    }
+
+    /// Warnings and errors logged but not told as events (over the budget,
+    /// or the daemon behind).
+    pub fn withheld(&self) -> u64 {
+        self.lock().tap.as_ref().map_or(0, |t| t.withheld)
+    }
+
+    /// Appends a line and tells `warning` if there is one to tell.
+    fn record(&self, line: String, warning: Option<Warning>) {
         let mut ring = self.lock();
         if ring.lines.len() == ring.capacity {
             ring.lines.pop_front();
         }
         ring.lines.push_back(line);
+        if let (Some(tap), Some(w)) = (ring.tap.as_mut(), warning) {
+            tap.tell(w, Instant::now());
+        }
     }
 
     /// The last `n` lines (fewer if fewer were logged), oldest first.
@@ -95,7 +176,8 @@ impl<S: Subscriber> Layer<S> for RecentLogLayer {
         let mut visitor = LineVisitor::default();
         event.record(&mut visitor);
         let mut line = String::with_capacity(64 + visitor.message.len() + visitor.fields.len());
-        write_utc(&mut line, SystemTime::now());
+        let now = SystemTime::now();
+        write_utc(&mut line, now);
         let _ = write!(
             line,
             " {} {}: {}{}",
@@ -104,7 +186,19 @@ impl<S: Subscriber> Layer<S> for RecentLogLayer {
             visitor.message,
             visitor.fields
         );
-        self.log.push(line);
+        let level = match *meta.level() {
+            Level::ERROR => Some("error"),
+            Level::WARN => Some("warning"),
+            _ => None,
+        };
+        let warning = level.map(|level| Warning {
+            level,
+            msg: visitor.message + &visitor.fields,
+            ts: now
+                .duration_since(UNIX_EPOCH)
+                .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX)),
+        });
+        self.log.record(line, warning);
     }
 }
 
@@ -211,6 +305,66 @@ mod tests {
             "{}",
             lines[0]
         );
+    }
+
+    fn told(rx: &mut mpsc::Receiver<Warning>) -> Vec<(&'static str, String)> {
+        let mut out = Vec::new();
+        while let Ok(w) = rx.try_recv() {
+            out.push((w.level, w.msg));
+        }
+        out
+    }
+
+    #[test]
+    fn warnings_and_errors_are_told_once_asked_for_and_the_rest_only_logged() {
+        let log = RecentLog::new(16);
+        let subscriber = tracing_subscriber::registry().with(log.layer());
+        tracing::subscriber::with_default(subscriber, || {
+            tracing::warn!("before anyone asked");
+            let mut rx = log.tell_warnings();
+            tracing::info!("a notice");
+            tracing::warn!(altitude = 12.5, "battery low");
+            tracing::error!("flush failed");
+            tracing::debug!("detail");
+            assert_eq!(
+                told(&mut rx),
+                [
+                    ("warning", "battery low altitude=12.5".to_owned()),
+                    ("error", "flush failed".to_owned())
+                ]
+            );
+        });
+        assert_eq!(log.len(), 5, "the log keeps every line");
+    }
+
+    #[test]
+    fn a_flood_of_warnings_is_told_within_a_budget_and_a_full_queue_never_blocks() {
+        let log = RecentLog::new(8);
+        let mut rx = log.tell_warnings();
+        let subscriber = tracing_subscriber::registry().with(log.layer());
+        tracing::subscriber::with_default(subscriber, || {
+            for i in 0..1000 {
+                tracing::warn!("again {i}");
+            }
+        });
+        // The burst at once (a few more if the flood took long enough for
+        // the budget to fill), the rest withheld, and none blocked.
+        let n = told(&mut rx).len();
+        assert!(
+            (TELL_BURST as usize..TELL_BURST as usize + 10).contains(&n),
+            "{n}"
+        );
+        assert_eq!(log.withheld(), 1000 - n as u64);
+        // Nobody reading: the layer still returns, and the log has them all.
+        let _unread = log.tell_warnings();
+        let subscriber = tracing_subscriber::registry().with(log.layer());
+        tracing::subscriber::with_default(subscriber, || {
+            for i in 0..(TELL_QUEUE + 100) {
+                tracing::error!("unread {i}");
+            }
+        });
+        assert!(log.withheld() >= (TELL_QUEUE + 100 - TELL_BURST as usize - 10) as u64);
+        assert!(log.recent(1)[0].ends_with(&format!("unread {}", TELL_QUEUE + 99)));
     }
 
     #[test]

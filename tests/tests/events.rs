@@ -178,6 +178,35 @@ async fn without_a_password_events_come_at_once() {
     );
 }
 
+#[tokio::test]
+async fn a_warning_in_the_log_is_told_as_a_log_event() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let daemon = Lluavd::start(dir.path(), &Options::default());
+    let mut sub = Conn::connect(&events_url(&daemon)).await;
+    let mut c = Conn::connect(&daemon.url).await;
+    // The simulator logs its autopilot's reboot as a warning.
+    assert_eq!(c.request("reboot_ap").await["ret"], 0);
+    let e = event(&mut sub).await;
+    assert_eq!(
+        (&e["event"], &e["level"], &e["msg"]),
+        (
+            &json!("log"),
+            &json!("warning"),
+            &json!("simulated autopilot reboot")
+        ),
+        "{e}"
+    );
+    // What showmsg shows, with its time and level in front.
+    let shown = c.request("showmsg").await;
+    let lines = shown["msgs"].as_array().expect("msgs");
+    assert!(
+        lines.iter().any(|l| l
+            .as_str()
+            .is_some_and(|l| l.ends_with(" WARN lluav_host::sim: simulated autopilot reboot"))),
+        "{shown}"
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_subscriber_that_stops_reading_gets_a_gap_and_the_vehicle_goes_on_answering() {
     use futures_util::StreamExt;

@@ -29,13 +29,6 @@ const BATTERY_HYSTERESIS: f64 = 2.0;
 /// Events queued before the oldest are dropped: only when nobody drains
 /// them (a vehicle opened without a daemon); the daemon drains at once.
 const MAX_QUEUED: usize = 1024;
-/// `STATUSTEXT` log events told in a burst, and how many more per second:
-/// an autopilot repeats its warnings (ArduPilot's pre-arm checks every
-/// 30 s), but one that floods would crowd every other event out of the
-/// subscribers' queues. The lluavd log still gets every line.
-const LOG_BURST: f64 = 20.0;
-const LOG_PER_S: f64 = 2.0;
-
 /// What the vehicle looks like now, as far as events go.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Seen {
@@ -63,9 +56,6 @@ pub struct News {
     /// The battery's band as last told: 0 at or above the low level, one
     /// more for each 10 % below it, `i32::MAX` empty.
     band: i32,
-    /// The `STATUSTEXT` budget: tokens left, and when it was last filled.
-    log_tokens: f64,
-    log_filled_ms: Option<i64>,
     /// Queued events dropped because nobody drained them.
     dropped: u64,
 }
@@ -80,8 +70,6 @@ impl Default for News {
             armed: false,
             failsafe: None,
             band: 0,
-            log_tokens: LOG_BURST,
-            log_filled_ms: None,
             dropped: 0,
         }
     }
@@ -159,51 +147,22 @@ impl News {
             }
         }
     }
+}
 
-    /// Takes in a `STATUSTEXT` received at `now_ms`: every one goes to
-    /// lluavd's log (what `showmsg` shows), those of severity WARNING or
-    /// graver are told as `log` events too, within the budget.
-    pub fn statustext(&mut self, s: &STATUSTEXT_DATA, now_ms: i64) {
-        let Some(msg) = text(s) else { return };
-        let level = match s.severity {
-            MavSeverity::MAV_SEVERITY_EMERGENCY
-            | MavSeverity::MAV_SEVERITY_ALERT
-            | MavSeverity::MAV_SEVERITY_CRITICAL
-            | MavSeverity::MAV_SEVERITY_ERROR => "error",
-            MavSeverity::MAV_SEVERITY_WARNING => "warning",
-            MavSeverity::MAV_SEVERITY_NOTICE | MavSeverity::MAV_SEVERITY_INFO => {
-                tracing::info!("{msg}");
-                return;
-            }
-            MavSeverity::MAV_SEVERITY_DEBUG => {
-                tracing::debug!("{msg}");
-                return;
-            }
-        };
-        if level == "error" {
-            tracing::error!("{msg}");
-        } else {
-            tracing::warn!("{msg}");
-        }
-        if self.spend_log_token(now_ms) {
-            self.tell(Event::Log { level, msg });
-        } else {
-            tracing::debug!("autopilot message not told as an event: too many");
-        }
-    }
-
-    fn spend_log_token(&mut self, now_ms: i64) -> bool {
-        let since_s = self
-            .log_filled_ms
-            .map_or(0.0, |t| now_ms.saturating_sub(t).max(0) as f64 / 1000.0);
-        self.log_filled_ms = Some(now_ms);
-        self.log_tokens = (self.log_tokens + since_s * LOG_PER_S).min(LOG_BURST);
-        if self.log_tokens >= 1.0 {
-            self.log_tokens -= 1.0;
-            true
-        } else {
-            false
-        }
+/// Logs a `STATUSTEXT` at its severity: every one goes to lluavd's log
+/// (what `showmsg` shows), and the log tells those of severity WARNING or
+/// graver as `log` events, as it does every warning
+/// ([`crate::recent_log::RecentLog::tell_warnings`]).
+pub fn statustext(s: &STATUSTEXT_DATA) {
+    let Some(msg) = text(s) else { return };
+    match s.severity {
+        MavSeverity::MAV_SEVERITY_EMERGENCY
+        | MavSeverity::MAV_SEVERITY_ALERT
+        | MavSeverity::MAV_SEVERITY_CRITICAL
+        | MavSeverity::MAV_SEVERITY_ERROR => tracing::error!("{msg}"),
+        MavSeverity::MAV_SEVERITY_WARNING => tracing::warn!("{msg}"),
+        MavSeverity::MAV_SEVERITY_NOTICE | MavSeverity::MAV_SEVERITY_INFO => tracing::info!("{msg}"),
+        MavSeverity::MAV_SEVERITY_DEBUG => tracing::debug!("{msg}"),
     }
 }
 
@@ -422,7 +381,7 @@ mod tests {
         assert_eq!(battery(&mut news, 1.0), []);
     }
 
-    fn statustext(severity: MavSeverity, text: &str) -> STATUSTEXT_DATA {
+    fn statustext_data(severity: MavSeverity, text: &str) -> STATUSTEXT_DATA {
         STATUSTEXT_DATA {
             severity,
             text: text.into(),
@@ -430,53 +389,52 @@ mod tests {
     }
 
     #[test]
-    fn statustext_of_warning_and_graver_is_told_as_log() {
-        let mut news = News::default();
-        news.statustext(&statustext(MavSeverity::MAV_SEVERITY_WARNING, "Low battery  "), 0);
-        news.statustext(
-            &statustext(MavSeverity::MAV_SEVERITY_CRITICAL, "PreArm: GPS not healthy"),
-            0,
-        );
-        news.statustext(&statustext(MavSeverity::MAV_SEVERITY_INFO, "Takeoff detected"), 0);
-        news.statustext(&statustext(MavSeverity::MAV_SEVERITY_ERROR, "\0garbage after"), 0);
-        let mut bad = statustext(MavSeverity::MAV_SEVERITY_ERROR, "");
+    fn statustext_is_logged_at_its_severity_and_the_graver_told_as_log() {
+        use tracing_subscriber::layer::SubscriberExt;
+        let log = crate::recent_log::RecentLog::new(16);
+        let mut told = log.tell_warnings();
+        let subscriber = tracing_subscriber::registry().with(log.layer());
+        let mut bad = statustext_data(MavSeverity::MAV_SEVERITY_ERROR, "");
         bad.text = [0xff; 50].into();
-        news.statustext(&bad, 0);
-        let told = take(&mut news);
+        tracing::subscriber::with_default(subscriber, || {
+            statustext(&statustext_data(
+                MavSeverity::MAV_SEVERITY_WARNING,
+                "Low battery  ",
+            ));
+            statustext(&statustext_data(
+                MavSeverity::MAV_SEVERITY_CRITICAL,
+                "PreArm: GPS not healthy",
+            ));
+            statustext(&statustext_data(
+                MavSeverity::MAV_SEVERITY_INFO,
+                "Takeoff detected",
+            ));
+            statustext(&statustext_data(
+                MavSeverity::MAV_SEVERITY_ERROR,
+                "\0garbage after",
+            ));
+            statustext(&bad);
+        });
+        let mut warnings = Vec::new();
+        while let Ok(w) = told.try_recv() {
+            warnings.push((w.level, w.msg));
+        }
         assert_eq!(
-            told[..2],
+            warnings[..2],
             [
-                Event::Log {
-                    level: "warning",
-                    msg: "autopilot: Low battery".into()
-                },
-                Event::Log {
-                    level: "error",
-                    msg: "autopilot: PreArm: GPS not healthy".into()
-                },
+                ("warning", "autopilot: Low battery".to_owned()),
+                ("error", "autopilot: PreArm: GPS not healthy".to_owned()),
             ]
         );
-        // Invalid UTF-8 is shown replaced, not dropped.
+        // Invalid UTF-8 is shown replaced, not dropped; nothing is no line.
+        assert!(warnings[2].1.starts_with("autopilot: \u{fffd}"), "{warnings:?}");
+        assert_eq!(warnings.len(), 3);
         assert!(
-            matches!(&told[2], Event::Log { level: "error", msg } if msg.starts_with("autopilot: \u{fffd}")),
-            "{told:?}"
+            log.recent(16)
+                .iter()
+                .any(|l| l.ends_with("INFO lluav_host::mavlink::news: autopilot: Takeoff detected"))
         );
-        assert_eq!(told.len(), 3);
-    }
-
-    #[test]
-    fn an_autopilot_that_floods_warnings_is_told_within_a_budget() {
-        let mut news = News::default();
-        let warning = statustext(MavSeverity::MAV_SEVERITY_WARNING, "again");
-        for _ in 0..100 {
-            news.statustext(&warning, 1000);
-        }
-        assert_eq!(take(&mut news).len(), LOG_BURST as usize);
-        // The budget fills again with time.
-        for _ in 0..100 {
-            news.statustext(&warning, 3000);
-        }
-        assert_eq!(take(&mut news).len(), (2.0 * LOG_PER_S) as usize);
+        assert_eq!(log.len(), 4);
     }
 
     #[test]

@@ -107,7 +107,7 @@ impl Known {
         self.missions.observe(msg);
         match msg {
             MavMessage::HEARTBEAT(_) => self.observe_mode(now_ms),
-            MavMessage::STATUSTEXT(s) => self.news.statustext(s, now_ms),
+            MavMessage::STATUSTEXT(s) => super::news::statustext(s),
             _ => {}
         }
         // Climbing, or disarmed after `takeoff` answered (the autopilot
