@@ -58,6 +58,7 @@ pub mod error;
 pub mod gate;
 pub mod number;
 pub mod parse;
+mod password;
 pub mod response;
 pub mod server;
 pub mod session;

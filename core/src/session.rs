@@ -8,15 +8,11 @@
 
 use crate::authority::Label;
 use crate::error::ArgError;
-use crate::parse::MAX_PASSWORD_LEN;
+use crate::password::MAX_PASSWORD_LEN;
+pub use crate::password::{DEFAULT_ADMIN_PASSWORD, DEFAULT_LOGOUT_PASSWORD};
 use crate::table::CommandId;
 use crate::throttle::{DefaultSlots, Slots, Throttle};
 pub use crate::throttle::{MAX_WRONG_PASSWORDS, Peer};
-
-/// The login value that grants admin, unless configured otherwise.
-pub const DEFAULT_ADMIN_PASSWORD: &str = "1025";
-/// The login value that logs the session out, unless configured otherwise.
-pub const DEFAULT_LOGOUT_PASSWORD: &str = "0315";
 
 /// What a session may do.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -149,7 +145,7 @@ impl core::fmt::Debug for Secret {
 
 impl Secret {
     fn new(s: &str) -> Result<Self, ArgError> {
-        crate::parse::rules::password_chars(s)?;
+        crate::password::chars(s)?;
         let mut bytes = [0u8; MAX_PASSWORD_LEN];
         bytes
             .get_mut(..s.len())

@@ -6,7 +6,8 @@ use core::cmp::Ordering;
 use crate::command::Pose;
 use crate::error::{ArgError, Bound};
 use crate::number::{Exact, Number};
-use crate::session::{DEFAULT_ADMIN_PASSWORD, DEFAULT_LOGOUT_PASSWORD};
+pub use crate::password::MAX_PASSWORD_LEN;
+use crate::password::{DEFAULT_ADMIN_PASSWORD, DEFAULT_LOGOUT_PASSWORD};
 
 /// Longest name that becomes a file, in bytes (so that a temporary name
 /// beside it still fits a filesystem's 255).
@@ -15,8 +16,6 @@ pub const MAX_NAME_LEN: usize = 128;
 pub const MAX_PATH_LEN: usize = 1024;
 /// Longest parameter name and task id.
 pub const MAX_IDENT_LEN: usize = 64;
-/// Longest login password.
-pub const MAX_PASSWORD_LEN: usize = 32;
 /// Longest free text (a plan), in bytes: `state` reports it, and the MCU's
 /// frame is 4 KiB.
 pub const MAX_TEXT_LEN: usize = 4096;
@@ -172,18 +171,11 @@ pub(crate) fn secret(s: &str) -> Result<&str, ArgError> {
     text(s)
 }
 
-/// The characters of a password: 1–32 printable ASCII characters, no
-/// space (the special login values included).
-pub(crate) fn password_chars(s: &str) -> Result<&str, ArgError> {
-    let ok = !s.is_empty() && s.len() <= MAX_PASSWORD_LEN && s.bytes().all(|b| b.is_ascii_graphic());
-    if ok { Ok(s) } else { Err(ArgError::BadPassword) }
-}
-
 /// DESIGN.md: 1–32 printable ASCII characters, no space, not `1025` or
 /// `0315`. (A daemon may choose other special values; [`crate::Auth`]
 /// refuses those too.)
 pub(crate) fn new_password(s: &str) -> Result<&str, ArgError> {
-    match password_chars(s)? {
+    match crate::password::chars(s)? {
         DEFAULT_ADMIN_PASSWORD | DEFAULT_LOGOUT_PASSWORD => Err(ArgError::SpecialPassword),
         s => Ok(s),
     }
