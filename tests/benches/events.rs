@@ -38,11 +38,11 @@ mod measure;
 
 use std::time::{Duration, Instant};
 
-use fleet::{Fleet, fan_out};
+use fleet::{Fleet, fan_out, operator, print_fan_outs};
 use hdrhistogram::Histogram;
 use lluav_tests::broker::{Mosquitto, Mqtt};
 use lluav_tests::{Conn, Lluavd, Options, Received, WAIT};
-use measure::{cpu_s, histogram, memory_kib, record, us};
+use measure::{cpu_s, flag, histogram, record, us};
 use serde_json::Value;
 use tokio::sync::mpsc;
 
@@ -60,30 +60,15 @@ struct Args {
 }
 
 fn args() -> Args {
-    let mut a = Args {
-        events: 1000,
-        ws_subs: 100,
-        mqtt_subs: 100,
-        idle_s: 60,
-        idle_vehicles: 5,
-        vehicles: 1000,
-        fan_outs: 10,
-    };
-    let argv: Vec<String> = std::env::args().collect();
-    for pair in argv.windows(2) {
-        let n = pair[1].parse().ok();
-        match (pair[0].as_str(), n) {
-            ("--events", Some(n)) => a.events = n,
-            ("--ws-subs", Some(n)) => a.ws_subs = n,
-            ("--mqtt-subs", Some(n)) => a.mqtt_subs = n,
-            ("--idle-s", Some(n)) => a.idle_s = n as u64,
-            ("--idle-vehicles", Some(n)) => a.idle_vehicles = n,
-            ("--vehicles", Some(n)) => a.vehicles = n,
-            ("--fan-outs", Some(n)) => a.fan_outs = n,
-            _ => {}
-        }
+    Args {
+        events: flag("--events", 1000),
+        ws_subs: flag("--ws-subs", 100),
+        mqtt_subs: flag("--mqtt-subs", 100),
+        idle_s: flag("--idle-s", 60) as u64,
+        idle_vehicles: flag("--idle-vehicles", 5),
+        vehicles: flag("--vehicles", 1000),
+        fan_outs: flag("--fan-outs", 10),
     }
-    a
 }
 
 fn load_average() -> String {
@@ -455,25 +440,18 @@ async fn fleet(a: &Args) {
     let dir = tempfile::tempdir().expect("temp dir");
     let load_before = load_average();
     let started = Instant::now();
-    let fleet = Fleet::start(
-        &broker,
-        dir.path(),
-        a.vehicles,
-        &["--uplink-state-hz", "1", "--allow-no-password"],
-    )
-    .await;
+    let fleet = Fleet::at_1hz(&broker, dir.path(), a.vehicles).await;
     let start_s = started.elapsed().as_secs_f64();
     let (cpu0, broker0, t0) = (
         fleet.cpu_s(),
         cpu_s(broker.pid().expect("broker runs")),
         Instant::now(),
     );
-    let mut op = Mqtt::connect(&broker, "fleet-op").await;
-    op.subscribe("lluav/+/res/fleet-op").await;
+    let mut op = operator(&broker).await;
     let mut h = histogram();
     let mut missing = 0;
     for round in 0..a.fan_outs {
-        let (took, left) = fan_out(&mut op, "fleet-op", &fleet.ids, round, WAIT).await;
+        let (took, left) = fan_out(&mut op, &fleet.ids, round, WAIT).await;
         missing += left;
         h.saturating_record(ns(took));
         tokio::time::sleep(Duration::from_secs(1)).await;
@@ -481,20 +459,17 @@ async fn fleet(a: &Args) {
     let window = t0.elapsed().as_secs_f64();
     let fleet_cpu = (fleet.cpu_s() - cpu0) / window;
     let broker_cpu = (cpu_s(broker.pid().expect("broker runs")) - broker0) / window;
-    let rss: Vec<f64> = fleet.vehicles.iter().map(|v| memory_kib(v.pid()).0).collect();
+    let rss: Vec<f64> = fleet
+        .vehicles
+        .iter()
+        .map(|v| lluav_tests::memory_kib(v.pid()).0 as f64)
+        .collect();
     println!(
         "\n{} lluavd vehicles (`--uplink-state-hz 1`) on one Mosquitto; {} fan-outs of `state` to all of them, 1 s apart:\n",
         a.vehicles, a.fan_outs
     );
-    println!("| measure | value |");
-    println!("|---|---:|");
+    print_fan_outs(&h);
     println!("| all started and online | {start_s:.1} s |");
-    println!(
-        "| fan-out, first request to last answer: p50 / p99 / max ms | {:.0} / {:.0} / {:.0} |",
-        us(&h, 0.5) / 1000.0,
-        us(&h, 0.99) / 1000.0,
-        h.max() as f64 / 1e6
-    );
     println!("| answers missing (of {}) | {missing} |", a.vehicles * a.fan_outs);
     println!(
         "| all vehicles' CPU during the fan-outs | {:.1} % of a core ({:.3} % each) |",
@@ -516,27 +491,22 @@ async fn fleet(a: &Args) {
     fleet.stop();
 }
 
-fn main() {
+#[tokio::main]
+async fn main() {
     let a = args();
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .enable_all()
-        .build()
-        .expect("runtime");
-    runtime.block_on(async {
-        println!("load average at the start: {}", load_average());
-        let broker = Mosquitto::start();
-        if a.events > 0 {
-            latency(&a, &broker).await;
-        }
-        if a.ws_subs > 0 {
-            mission(&a, &broker).await;
-        }
-        if a.idle_vehicles > 0 {
-            idle(&a, &broker).await;
-        }
-        drop(broker);
-        if a.vehicles > 0 {
-            fleet(&a).await;
-        }
-    });
+    println!("load average at the start: {}", load_average());
+    let broker = Mosquitto::start();
+    if a.events > 0 {
+        latency(&a, &broker).await;
+    }
+    if a.ws_subs > 0 {
+        mission(&a, &broker).await;
+    }
+    if a.idle_vehicles > 0 {
+        idle(&a, &broker).await;
+    }
+    drop(broker);
+    if a.vehicles > 0 {
+        fleet(&a).await;
+    }
 }

@@ -41,14 +41,20 @@ mod fleet;
 #[path = "common/measure.rs"]
 mod measure;
 
-use fleet::{Fleet, fan_out};
+use fleet::{Fleet, fan_out, operator, print_fan_outs};
 use futures_util::{SinkExt, StreamExt};
 use hdrhistogram::Histogram;
 use lluav_host::uplink::durable::{Entry, Store};
 use lluav_tests::broker::{Mosquitto, Mqtt, QoS, topic, with_admin};
 use lluav_tests::flooder::{Flood, Flooder};
 use lluav_tests::{Lluavd, Options, WAIT};
-use measure::{cpu_s, histogram, memory_kib, record, us};
+
+/// (VmRSS, VmHWM) of process `pid`, in KiB.
+fn memory_kib(pid: u32) -> (f64, f64) {
+    let (rss, hwm) = lluav_tests::memory_kib(pid);
+    (rss as f64, hwm as f64)
+}
+use measure::{cpu_s, flag, histogram, record, us};
 use rumqttc::v5::mqttbytes::v5::{Filter, Packet};
 use rumqttc::v5::{AsyncClient, Event, MqttOptions};
 use tokio_tungstenite::tungstenite::Message;
@@ -64,26 +70,13 @@ struct Args {
 }
 
 fn args() -> Args {
-    let mut a = Args {
-        round_trips: 2000,
-        vehicles: 100,
-        fan_outs: 50,
-        clients: 100_000,
-        flood_mib: 256,
-    };
-    let argv: Vec<String> = std::env::args().collect();
-    for pair in argv.windows(2) {
-        let n = pair[1].parse().ok();
-        match (pair[0].as_str(), n) {
-            ("--round-trips", Some(n)) => a.round_trips = n,
-            ("--vehicles", Some(n)) => a.vehicles = n,
-            ("--fan-outs", Some(n)) => a.fan_outs = n,
-            ("--clients", Some(n)) => a.clients = n,
-            ("--flood", Some(n)) => a.flood_mib = n as u64,
-            _ => {}
-        }
+    Args {
+        round_trips: flag("--round-trips", 2000),
+        vehicles: flag("--vehicles", 100),
+        fan_outs: flag("--fan-outs", 50),
+        clients: flag("--clients", 100_000),
+        flood_mib: flag("--flood", 256) as u64,
     }
-    a
 }
 
 /// The bare echo, as a process of its own: every message on `echo/req/+`
@@ -425,13 +418,7 @@ fn rss_kib(pid: u32) -> f64 {
 async fn fleet(a: &Args) {
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir().expect("temp dir");
-    let vehicles = Fleet::start(
-        &broker,
-        dir.path(),
-        a.vehicles,
-        &["--uplink-state-hz", "1", "--allow-no-password"],
-    )
-    .await;
+    let vehicles = Fleet::at_1hz(&broker, dir.path(), a.vehicles).await;
     let plain = Lluavd::start(&dir.path().join("plain"), &Options::default());
     tokio::time::sleep(Duration::from_secs(2)).await;
     let pid = broker.pid().expect("broker runs");
@@ -442,12 +429,11 @@ async fn fleet(a: &Args) {
     let broker_idle = (cpu_s(pid) - cpu0) / idle_window;
     let fleet_idle = (vehicles.cpu_s() - fleet_cpu0) / idle_window;
 
-    let mut op = Mqtt::connect(&broker, "fleet-op").await;
-    op.subscribe("lluav/+/res/fleet-op").await;
+    let mut op = operator(&broker).await;
     let mut h = histogram();
     let (cpu1, at1) = (cpu_s(pid), Instant::now());
     for round in 0..a.fan_outs {
-        let (took, missing) = fan_out(&mut op, "fleet-op", &vehicles.ids, round, WAIT).await;
+        let (took, missing) = fan_out(&mut op, &vehicles.ids, round, WAIT).await;
         assert_eq!(missing, 0, "fan-out {round}: {missing} vehicles did not answer");
         h.saturating_record(u64::try_from(took.as_nanos()).unwrap_or(u64::MAX));
         tokio::time::sleep(Duration::from_millis(200)).await;
@@ -460,14 +446,7 @@ async fn fleet(a: &Args) {
         "\n{} lluavd vehicles on one Mosquitto, state at 1 Hz; {} fan-outs of `state` to all of them:\n",
         a.vehicles, a.fan_outs
     );
-    println!("| measure | value |");
-    println!("|---|---:|");
-    println!(
-        "| fan-out, first request to last answer: p50 / p99 / max ms | {:.1} / {:.1} / {:.1} |",
-        us(&h, 0.5) / 1000.0,
-        us(&h, 0.99) / 1000.0,
-        h.max() as f64 / 1e6
-    );
+    print_fan_outs(&h);
     println!(
         "| broker CPU, state only / during the fan-outs | {:.1} % / {:.1} % of a core |",
         100.0 * broker_idle,

@@ -41,6 +41,12 @@ impl Fleet {
         Fleet { ids, vehicles }
     }
 
+    /// [`Fleet::start`] with each vehicle's state at 1 Hz and no
+    /// password.
+    pub async fn at_1hz(broker: &Mosquitto, dir: &Path, n: usize) -> Fleet {
+        Fleet::start(broker, dir, n, &["--uplink-state-hz", "1", "--allow-no-password"]).await
+    }
+
     /// All vehicles' CPU time so far, in seconds.
     pub fn cpu_s(&self) -> f64 {
         self.vehicles.iter().map(|v| super::measure::cpu_s(v.pid())).sum()
@@ -54,22 +60,25 @@ impl Fleet {
     }
 }
 
-/// One `state` to each of `ids` from `op` (subscribed to
-/// `lluav/+/res/<client>`) with request id `round`: the time from the
-/// first request out to the last answer in, and how many vehicles had not
-/// answered within `limit`.
-pub async fn fan_out(
-    op: &mut Mqtt,
-    client: &str,
-    ids: &[String],
-    round: usize,
-    limit: Duration,
-) -> (Duration, usize) {
+/// The operator's client id.
+const OPERATOR: &str = "fleet-op";
+
+/// The operator that fans out: connected, subscribed to its answers.
+pub async fn operator(broker: &Mosquitto) -> Mqtt {
+    let mut op = Mqtt::connect(broker, OPERATOR).await;
+    op.subscribe(&format!("lluav/+/res/{OPERATOR}")).await;
+    op
+}
+
+/// One `state` to each of `ids` from `op` (an [`operator`]) with request
+/// id `round`: the time from the first request out to the last answer in,
+/// and how many vehicles had not answered within `limit`.
+pub async fn fan_out(op: &mut Mqtt, ids: &[String], round: usize, limit: Duration) -> (Duration, usize) {
     let sent = Instant::now();
     let envelope = format!(r#"{{"id":"{round}","frame":"state"}}"#);
     for id in ids {
         op.publish(
-            &format!("lluav/{id}/req/{client}"),
+            &format!("lluav/{id}/req/{OPERATOR}"),
             envelope.clone(),
             QoS::AtLeastOnce,
             false,
@@ -87,4 +96,17 @@ pub async fn fan_out(
         }
     }
     (sent.elapsed(), ids.len() - answered)
+}
+
+/// The head of a fleet's table and its first row, the fan-outs' times
+/// (`h` in ns): p50 / p99 / max in ms.
+pub fn print_fan_outs(h: &hdrhistogram::Histogram<u64>) {
+    println!("| measure | value |");
+    println!("|---|---:|");
+    println!(
+        "| fan-out, first request to last answer: p50 / p99 / max ms | {:.1} / {:.1} / {:.1} |",
+        h.value_at_quantile(0.5) as f64 / 1e6,
+        h.value_at_quantile(0.99) as f64 / 1e6,
+        h.max() as f64 / 1e6
+    );
 }

@@ -1,9 +1,20 @@
-//! What the broker benches read of a run: latency histograms in ns, and a
-//! process's CPU time and memory from `/proc`.
+//! What the broker benches share: their flags, latency histograms in ns,
+//! and a process's CPU time from `/proc`.
 
 use std::time::Instant;
 
 use hdrhistogram::Histogram;
+
+/// The number after flag `name` on the command line (`--name N`), or
+/// `default`.
+pub fn flag(name: &str, default: usize) -> usize {
+    let argv: Vec<String> = std::env::args().collect();
+    argv.windows(2)
+        .rev()
+        .find(|pair| pair[0] == name)
+        .and_then(|pair| pair[1].parse().ok())
+        .unwrap_or(default)
+}
 
 /// A histogram of nanoseconds, up to a minute.
 pub fn histogram() -> Histogram<u64> {
@@ -19,20 +30,6 @@ pub fn record(h: &mut Histogram<u64>, since: Instant) {
 /// The quantile `q` of `h`, in µs.
 pub fn us(h: &Histogram<u64>, q: f64) -> f64 {
     h.value_at_quantile(q) as f64 / 1000.0
-}
-
-/// (VmRSS, VmHWM) of process `pid`, in KiB.
-pub fn memory_kib(pid: u32) -> (f64, f64) {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
-    let field = |name: &str| {
-        status
-            .lines()
-            .find_map(|l| l.strip_prefix(name))
-            .and_then(|v| v.trim().strip_suffix("kB"))
-            .and_then(|v| v.trim().parse().ok())
-            .unwrap_or(0.0)
-    };
-    (field("VmRSS:"), field("VmHWM:"))
 }
 
 /// (utime + stime) in seconds of process `pid` (all its threads, the
