@@ -36,12 +36,25 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+#[path = "common/fleet.rs"]
+mod fleet;
+#[path = "common/measure.rs"]
+mod measure;
+
+use fleet::{Fleet, fan_out, operator, print_fan_outs};
 use futures_util::{SinkExt, StreamExt};
 use hdrhistogram::Histogram;
 use lluav_host::uplink::durable::{Entry, Store};
 use lluav_tests::broker::{Mosquitto, Mqtt, QoS, topic, with_admin};
 use lluav_tests::flooder::{Flood, Flooder};
-use lluav_tests::{Lluavd, Options};
+use lluav_tests::{Lluavd, Options, WAIT};
+
+/// (VmRSS, VmHWM) of process `pid`, in KiB.
+fn memory_kib(pid: u32) -> (f64, f64) {
+    let (rss, hwm) = lluav_tests::memory_kib(pid);
+    (rss as f64, hwm as f64)
+}
+use measure::{cpu_s, flag, histogram, record, us};
 use rumqttc::v5::mqttbytes::v5::{Filter, Packet};
 use rumqttc::v5::{AsyncClient, Event, MqttOptions};
 use tokio_tungstenite::tungstenite::Message;
@@ -57,39 +70,13 @@ struct Args {
 }
 
 fn args() -> Args {
-    let mut a = Args {
-        round_trips: 2000,
-        vehicles: 100,
-        fan_outs: 50,
-        clients: 100_000,
-        flood_mib: 256,
-    };
-    let argv: Vec<String> = std::env::args().collect();
-    for pair in argv.windows(2) {
-        let n = pair[1].parse().ok();
-        match (pair[0].as_str(), n) {
-            ("--round-trips", Some(n)) => a.round_trips = n,
-            ("--vehicles", Some(n)) => a.vehicles = n,
-            ("--fan-outs", Some(n)) => a.fan_outs = n,
-            ("--clients", Some(n)) => a.clients = n,
-            ("--flood", Some(n)) => a.flood_mib = n as u64,
-            _ => {}
-        }
+    Args {
+        round_trips: flag("--round-trips", 2000),
+        vehicles: flag("--vehicles", 100),
+        fan_outs: flag("--fan-outs", 50),
+        clients: flag("--clients", 100_000),
+        flood_mib: flag("--flood", 256) as u64,
     }
-    a
-}
-
-fn histogram() -> Histogram<u64> {
-    // Bounds and precision are constants that hdrhistogram accepts.
-    Histogram::new_with_bounds(1, 60_000_000_000, 3).expect("valid histogram bounds")
-}
-
-fn record(h: &mut Histogram<u64>, since: Instant) {
-    h.saturating_record(u64::try_from(since.elapsed().as_nanos()).unwrap_or(u64::MAX));
-}
-
-fn us(h: &Histogram<u64>, q: f64) -> f64 {
-    h.value_at_quantile(q) as f64 / 1000.0
 }
 
 /// The bare echo, as a process of its own: every message on `echo/req/+`
@@ -337,20 +324,6 @@ async fn store_cost(a: &Args) {
     );
 }
 
-/// (VmRSS, VmHWM) of process `pid`, in KiB.
-fn memory_kib(pid: u32) -> (f64, f64) {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
-    let field = |name: &str| {
-        status
-            .lines()
-            .find_map(|l| l.strip_prefix(name))
-            .and_then(|v| v.trim().strip_suffix("kB"))
-            .and_then(|v| v.trim().parse().ok())
-            .unwrap_or(0.0)
-    };
-    (field("VmRSS:"), field("VmHWM:"))
-}
-
 /// One lluavd's memory while `a.clients` distinct client ids send it a
 /// request each through the broker, and while a stand-in broker floods it.
 async fn memory(a: &Args) {
@@ -438,21 +411,6 @@ async fn memory(a: &Args) {
     println!("\nRefusals among the {} answers: {refusals:?}", a.clients);
 }
 
-/// (utime + stime) in seconds of process `pid`.
-fn cpu_s(pid: u32) -> f64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    let after_name = stat.rsplit_once(')').map(|(_, rest)| rest).unwrap_or_default();
-    let ticks: u64 = after_name
-        .split_whitespace()
-        .skip(11)
-        .take(2)
-        .filter_map(|f| f.parse::<u64>().ok())
-        .sum();
-    // SAFETY: sysconf only reads a configuration value.
-    let per_s = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
-    ticks as f64 / if per_s > 0 { per_s as f64 } else { 100.0 }
-}
-
 fn rss_kib(pid: u32) -> f64 {
     memory_kib(pid).0
 }
@@ -460,82 +418,35 @@ fn rss_kib(pid: u32) -> f64 {
 async fn fleet(a: &Args) {
     let broker = Mosquitto::start();
     let dir = tempfile::tempdir().expect("temp dir");
-    let mut watch = Mqtt::connect(&broker, "fleet-watch").await;
-    watch.subscribe("lluav/+/status").await;
-    let ids: Vec<String> = (0..a.vehicles).map(|i| format!("f{i:03}")).collect();
-    let mut vehicles = Vec::new();
-    for id in &ids {
-        let options = Options::default().with_args(&[
-            "--uplink",
-            &broker.url,
-            "--vehicle-id",
-            id,
-            "--uplink-state-hz",
-            "1",
-            "--allow-no-password",
-        ]);
-        let data = dir.path().join(id);
-        vehicles.push(Lluavd::start(&data, &with_admin(&data, options)));
-    }
-    let mut online = std::collections::HashSet::new();
-    while online.len() < a.vehicles {
-        let (topic, v) = watch.json().await;
-        if v["online"] == true {
-            online.insert(topic);
-        }
-    }
+    let vehicles = Fleet::at_1hz(&broker, dir.path(), a.vehicles).await;
     let plain = Lluavd::start(&dir.path().join("plain"), &Options::default());
     tokio::time::sleep(Duration::from_secs(2)).await;
     let pid = broker.pid().expect("broker runs");
     let (cpu0, at0) = (cpu_s(pid), Instant::now());
-    let fleet_cpu0: f64 = vehicles.iter().map(|v| cpu_s(v.pid())).sum();
+    let fleet_cpu0 = vehicles.cpu_s();
     tokio::time::sleep(Duration::from_secs(10)).await;
     let idle_window = at0.elapsed().as_secs_f64();
     let broker_idle = (cpu_s(pid) - cpu0) / idle_window;
-    let fleet_idle = (vehicles.iter().map(|v| cpu_s(v.pid())).sum::<f64>() - fleet_cpu0) / idle_window;
+    let fleet_idle = (vehicles.cpu_s() - fleet_cpu0) / idle_window;
 
-    let mut op = Mqtt::connect(&broker, "fleet-op").await;
-    op.subscribe("lluav/+/res/fleet-op").await;
+    let mut op = operator(&broker).await;
     let mut h = histogram();
     let (cpu1, at1) = (cpu_s(pid), Instant::now());
     for round in 0..a.fan_outs {
-        let sent = Instant::now();
-        for id in &ids {
-            let envelope = format!(r#"{{"id":"{round}","frame":"state"}}"#);
-            op.publish(
-                &format!("lluav/{id}/req/fleet-op"),
-                envelope,
-                QoS::AtLeastOnce,
-                false,
-            )
-            .await;
-        }
-        let mut answered = 0;
-        while answered < a.vehicles {
-            let p = op.next().await;
-            if p.payload.starts_with(format!(r#"{{"id":"{round}""#).as_bytes()) {
-                answered += 1;
-            }
-        }
-        record(&mut h, sent);
+        let (took, missing) = fan_out(&mut op, &vehicles.ids, round, WAIT).await;
+        assert_eq!(missing, 0, "fan-out {round}: {missing} vehicles did not answer");
+        h.saturating_record(u64::try_from(took.as_nanos()).unwrap_or(u64::MAX));
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
     let broker_fan = (cpu_s(pid) - cpu1) / at1.elapsed().as_secs_f64();
-    let rss: Vec<f64> = vehicles.iter().map(|v| rss_kib(v.pid())).collect();
+    let rss: Vec<f64> = vehicles.vehicles.iter().map(|v| rss_kib(v.pid())).collect();
     let mean = rss.iter().sum::<f64>() / rss.len() as f64;
     let max = rss.iter().copied().fold(0.0, f64::max);
     println!(
         "\n{} lluavd vehicles on one Mosquitto, state at 1 Hz; {} fan-outs of `state` to all of them:\n",
         a.vehicles, a.fan_outs
     );
-    println!("| measure | value |");
-    println!("|---|---:|");
-    println!(
-        "| fan-out, first request to last answer: p50 / p99 / max ms | {:.1} / {:.1} / {:.1} |",
-        us(&h, 0.5) / 1000.0,
-        us(&h, 0.99) / 1000.0,
-        h.max() as f64 / 1e6
-    );
+    print_fan_outs(&h);
     println!(
         "| broker CPU, state only / during the fan-outs | {:.1} % / {:.1} % of a core |",
         100.0 * broker_idle,
@@ -555,9 +466,7 @@ async fn fleet(a: &Args) {
         rss_kib(plain.pid())
     );
     let _ = plain.terminate();
-    for v in vehicles {
-        let _ = v.terminate();
-    }
+    vehicles.stop();
 }
 
 fn main() {

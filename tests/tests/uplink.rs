@@ -19,7 +19,7 @@ use lluav_tests::broker::{
     with_admin,
 };
 use lluav_tests::flooder::{Flood, Flooder};
-use lluav_tests::{Conn, Lluavd, Options, WAIT, lluav_bin, lluavd_bin, test_ca};
+use lluav_tests::{Conn, Lluavd, Options, WAIT, lluav_bin, lluavd_bin, memory_kib, test_ca};
 use serde_json::Value;
 
 const PASSWORD: &str = "s3cret";
@@ -1634,21 +1634,6 @@ async fn the_fleet_listing_escapes_what_a_vehicle_wrote() {
             assert_eq!(fleet["evil"]["state"]["state"]["fsm"], fsm, "the same value");
         }
     }
-}
-
-/// The resident memory (`VmRSS`) and its peak (`VmHWM`) of process `pid`,
-/// in KiB.
-fn memory_kib(pid: u32) -> (u64, u64) {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
-    let field = |name: &str| {
-        status
-            .lines()
-            .find_map(|l| l.strip_prefix(name))
-            .and_then(|v| v.trim().strip_suffix("kB"))
-            .and_then(|v| v.trim().parse().ok())
-            .unwrap_or(0)
-    };
-    (field("VmRSS:"), field("VmHWM:"))
 }
 
 /// The uplink's documented memory bound (DESIGN.md, "Uplink").
