@@ -1,7 +1,7 @@
 //! The uplink measured, in one run on one Mosquitto:
 //!
 //! ```text
-//! cargo bench -p lluav-tests --features broker --bench uplink -- [--round-trips N] [--vehicles V] [--fan-outs F] [--clients C] [--flood MIB]
+//! cargo bench -p lluav-tests --features broker --bench uplink -- [--round-trips N] [--vehicles V] [--fan-outs F] [--clients C] [--flood MIB] [--only PART]
 //! ```
 //!
 //! 1. Round trips, closed loop, one request at a time: `state` through
@@ -31,7 +31,8 @@
 //!
 //! Defaults: 2000 round trips per path and round (200 more to warm up),
 //! 100 vehicles, 50 fan-outs, 100 000 client ids, a 256 MiB flood. The
-//! summary is Markdown for BENCHMARKS.md.
+//! summary is Markdown for BENCHMARKS.md. `--only PART` runs one part:
+//! `round-trips` (1), `store` (2), `memory` (3) or `fleet` (4).
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -54,6 +55,14 @@ struct Args {
     fan_outs: usize,
     clients: usize,
     flood_mib: u64,
+    /// `--only PART`: run this part alone.
+    only: Option<String>,
+}
+
+impl Args {
+    fn runs(&self, part: &str) -> bool {
+        self.only.as_deref().is_none_or(|only| only == part)
+    }
 }
 
 fn args() -> Args {
@@ -63,6 +72,7 @@ fn args() -> Args {
         fan_outs: 50,
         clients: 100_000,
         flood_mib: 256,
+        only: None,
     };
     let argv: Vec<String> = std::env::args().collect();
     for pair in argv.windows(2) {
@@ -73,6 +83,7 @@ fn args() -> Args {
             ("--fan-outs", Some(n)) => a.fan_outs = n,
             ("--clients", Some(n)) => a.clients = n,
             ("--flood", Some(n)) => a.flood_mib = n as u64,
+            ("--only", _) => a.only = Some(pair[1].clone()),
             _ => {}
         }
     }
@@ -574,15 +585,25 @@ fn main() {
         return serve_echo(port, size);
     }
     let a = args();
+    if let Some(only) = &a.only {
+        let parts = ["round-trips", "store", "memory", "fleet"];
+        assert!(parts.contains(&only.as_str()), "--only takes one of {parts:?}");
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
         .expect("runtime");
     runtime.block_on(async {
-        round_trips(&a).await;
-        store_cost(&a).await;
-        memory(&a).await;
-        if a.vehicles > 0 {
+        if a.runs("round-trips") {
+            round_trips(&a).await;
+        }
+        if a.runs("store") {
+            store_cost(&a).await;
+        }
+        if a.runs("memory") {
+            memory(&a).await;
+        }
+        if a.runs("fleet") && a.vehicles > 0 {
             fleet(&a).await;
         }
     });
