@@ -36,6 +36,7 @@ pub mod daemon;
 pub mod events;
 pub mod files;
 pub mod journal;
+pub mod malloc;
 pub mod mavlink;
 pub mod net;
 pub mod notify;

@@ -1,7 +1,7 @@
 //! The uplink measured, in one run on one Mosquitto:
 //!
 //! ```text
-//! cargo bench -p lluav-tests --features broker --bench uplink -- [--round-trips N] [--vehicles V] [--fan-outs F] [--clients C] [--flood MIB]
+//! cargo bench -p lluav-tests --features broker --bench uplink -- [--round-trips N] [--vehicles V] [--fan-outs F] [--clients C] [--flood MIB] [--only PART]
 //! ```
 //!
 //! 1. Round trips, closed loop, one request at a time: `state` through
@@ -31,7 +31,8 @@
 //!
 //! Defaults: 2000 round trips per path and round (200 more to warm up),
 //! 100 vehicles, 50 fan-outs, 100 000 client ids, a 256 MiB flood. The
-//! summary is Markdown for BENCHMARKS.md.
+//! summary is Markdown for BENCHMARKS.md. `--only PART` runs one part:
+//! `round-trips` (1), `store` (2), `memory` (3) or `fleet` (4).
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -54,7 +55,7 @@ fn memory_kib(pid: u32) -> (f64, f64) {
     let (rss, hwm) = lluav_tests::memory_kib(pid);
     (rss as f64, hwm as f64)
 }
-use measure::{cpu_s, flag, histogram, record, us};
+use measure::{cpu_s, flag, flag_word, histogram, record, us};
 use rumqttc::v5::mqttbytes::v5::{Filter, Packet};
 use rumqttc::v5::{AsyncClient, Event, MqttOptions};
 use tokio_tungstenite::tungstenite::Message;
@@ -67,6 +68,14 @@ struct Args {
     fan_outs: usize,
     clients: usize,
     flood_mib: u64,
+    /// `--only PART`: run this part alone.
+    only: Option<String>,
+}
+
+impl Args {
+    fn runs(&self, part: &str) -> bool {
+        self.only.as_deref().is_none_or(|only| only == part)
+    }
 }
 
 fn args() -> Args {
@@ -76,6 +85,7 @@ fn args() -> Args {
         fan_outs: flag("--fan-outs", 50),
         clients: flag("--clients", 100_000),
         flood_mib: flag("--flood", 256) as u64,
+        only: flag_word("--only"),
     }
 }
 
@@ -483,15 +493,25 @@ fn main() {
         return serve_echo(port, size);
     }
     let a = args();
+    if let Some(only) = &a.only {
+        let parts = ["round-trips", "store", "memory", "fleet"];
+        assert!(parts.contains(&only.as_str()), "--only takes one of {parts:?}");
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
         .expect("runtime");
     runtime.block_on(async {
-        round_trips(&a).await;
-        store_cost(&a).await;
-        memory(&a).await;
-        if a.vehicles > 0 {
+        if a.runs("round-trips") {
+            round_trips(&a).await;
+        }
+        if a.runs("store") {
+            store_cost(&a).await;
+        }
+        if a.runs("memory") {
+            memory(&a).await;
+        }
+        if a.runs("fleet") && a.vehicles > 0 {
             fleet(&a).await;
         }
     });

@@ -28,6 +28,8 @@ use tracing_subscriber::{EnvFilter, fmt};
 const RECENT_LOG_LINES: usize = 1000;
 
 fn main() -> ExitCode {
+    // Before any thread: the uplink's memory bound counts on it.
+    lluav_host::malloc::limit_arenas();
     let cli = Cli::parse();
     if cli.check_config {
         return lluav_host::check_config::run(cli);

@@ -8,12 +8,17 @@ use hdrhistogram::Histogram;
 /// The number after flag `name` on the command line (`--name N`), or
 /// `default`.
 pub fn flag(name: &str, default: usize) -> usize {
+    flag_word(name).and_then(|w| w.parse().ok()).unwrap_or(default)
+}
+
+/// The word after flag `name` on the command line (`--name WORD`), if
+/// given.
+pub fn flag_word(name: &str) -> Option<String> {
     let argv: Vec<String> = std::env::args().collect();
     argv.windows(2)
         .rev()
         .find(|pair| pair[0] == name)
-        .and_then(|pair| pair[1].parse().ok())
-        .unwrap_or(default)
+        .map(|pair| pair[1].clone())
 }
 
 /// A histogram of nanoseconds, up to a minute.
