@@ -244,7 +244,13 @@ impl Vehicle for Simulator {
     }
 
     fn override_failsafe(&mut self) -> Result<(), Failure> {
-        tracing::warn!(failsafe = ?self.flight.failsafe(), "failsafe overridden by the session in control");
+        // Named as `state.failsafe` names it: the log line is also a `log`
+        // event an operator reads.
+        let reason = self.failsafe().map(|f| f.reason().to_string());
+        tracing::warn!(
+            failsafe = reason.as_deref().unwrap_or("none"),
+            "failsafe overridden by the session in control"
+        );
         self.flight.override_failsafe();
         Ok(())
     }
