@@ -25,6 +25,20 @@ pub use outbox::{Hold, Outbox};
 /// Events a subscriber's queue holds before the oldest are dropped.
 pub const QUEUE: usize = 256;
 
+/// The battery's band, whose change is told as a `battery` event
+/// (DESIGN.md, "Events": when it crosses `low_battery`, each 10 % below
+/// it, and 0): 0 at or above `low`, one more for each 10 % below it,
+/// `i32::MAX` when empty. Both backends tell the battery by it.
+pub fn battery_band(percent: f64, low: f64) -> i32 {
+    if percent <= 0.0 {
+        i32::MAX
+    } else if percent >= low {
+        0
+    } else {
+        1 + ((low - percent) / 10.0).floor() as i32
+    }
+}
+
 /// A mission's progress.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MissionStatus {

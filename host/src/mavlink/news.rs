@@ -177,21 +177,10 @@ fn text(s: &STATUSTEXT_DATA) -> Option<String> {
     (!text.is_empty()).then(|| format!("autopilot: {text}"))
 }
 
-/// The battery's band: 0 at or above `low`, one more for each 10 % below
-/// it, `i32::MAX` when empty. The simulator's bands (`sim::flight`).
-fn band(percent: f64, low: f64) -> i32 {
-    if percent <= 0.0 {
-        i32::MAX
-    } else if percent >= low {
-        0
-    } else {
-        1 + ((low - percent) / 10.0).floor() as i32
-    }
-}
-
 /// The band to tell after `told` at `percent`: a fall at once, a climb
 /// only once [`BATTERY_HYSTERESIS`] above the level it climbs past.
 fn next_band(told: i32, percent: f64, low: f64) -> i32 {
+    let band = crate::events::battery_band;
     let now = band(percent, low);
     if now >= told {
         now

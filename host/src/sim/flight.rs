@@ -225,18 +225,6 @@ impl Active {
     }
 }
 
-/// The battery's band for events: 0 at or above `low`, one more for each
-/// 10 % below it, `i32::MAX` when empty.
-fn band(battery: f64, low: f64) -> i32 {
-    if battery <= 0.0 {
-        i32::MAX
-    } else if battery >= low {
-        0
-    } else {
-        1 + ((low - battery) / 10.0).floor() as i32
-    }
-}
-
 /// Totals since start, for `statics`.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Totals {
@@ -561,7 +549,7 @@ impl Flight {
             // (a vehicle disarmed in the air is still falling).
             self.end_failsafe();
         }
-        let band = band(self.battery, lim.low_battery);
+        let band = crate::events::battery_band(self.battery, lim.low_battery);
         if band != self.band {
             self.band = band;
             self.news.push(Event::Battery {
