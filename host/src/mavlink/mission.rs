@@ -32,6 +32,7 @@ use super::geo::Global;
 use super::protocol::mission_item;
 use crate::events::{Event, MissionStatus};
 use crate::vehicle::Ned;
+pub use crate::vehicle::mission::RunStatus as Status;
 
 /// Most missions kept; the oldest go first, never the one running.
 const MAX_KEPT: usize = 64;
@@ -71,28 +72,6 @@ pub struct OnAutopilot {
     pub wp_ids: Vec<u32>,
     /// The item of the first waypoint.
     pub first_seq: u16,
-}
-
-/// How a run goes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Status {
-    /// Flying.
-    Running,
-    /// The last waypoint was reached.
-    Completed,
-    /// The vehicle stopped flying it before its last waypoint (the
-    /// simulator's word for a run ended without `abort_report`).
-    Interrupted,
-}
-
-impl Status {
-    fn name(self) -> &'static str {
-        match self {
-            Status::Running => "running",
-            Status::Completed => "completed",
-            Status::Interrupted => "interrupted",
-        }
-    }
 }
 
 /// The run `mw_exec` started.

@@ -15,6 +15,7 @@ use lluav_core::{Args, Command, CommandId, Fields};
 use super::error::{SimError, SimResult};
 use super::flight::RouteEvent;
 use crate::events::{Event, MissionStatus};
+pub(crate) use crate::vehicle::mission::RunStatus as Status;
 use crate::vehicle::mission::Waypoint;
 
 /// Most missions kept (the oldest go first, never the one running):
@@ -47,30 +48,6 @@ pub(crate) struct Mission {
     pub(crate) waypoints: Vec<Waypoint>,
     /// When it was received, ms since the Unix epoch.
     pub(crate) received_ms: i64,
-}
-
-/// How a waypoint run went.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Status {
-    /// Still flying.
-    Running,
-    /// Every waypoint reached.
-    Completed,
-    /// Replaced by another command (setpoint, land, RTL, disarm, ...).
-    Interrupted,
-    /// Ended by `abort_report`.
-    Aborted,
-}
-
-impl Status {
-    fn name(self) -> &'static str {
-        match self {
-            Status::Running => "running",
-            Status::Completed => "completed",
-            Status::Interrupted => "interrupted",
-            Status::Aborted => "aborted",
-        }
-    }
 }
 
 /// One `mw_exec`.

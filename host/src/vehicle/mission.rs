@@ -16,6 +16,34 @@ use super::{Ned, Refusal};
 /// response buffer.
 pub(crate) const MAX_WAYPOINTS: usize = 400;
 
+/// How a waypoint run goes, as `dump_missionresult` and `state.mission`
+/// name it on every vehicle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunStatus {
+    /// Still flying.
+    Running,
+    /// Every waypoint reached.
+    Completed,
+    /// The vehicle stopped flying it before its last waypoint (another
+    /// command took it over: setpoint, land, RTL, disarm, another run; or,
+    /// over MAVLink, the autopilot left it).
+    Interrupted,
+    /// Ended by `abort_report` (the simulator's).
+    Aborted,
+}
+
+impl RunStatus {
+    /// Its name in answers.
+    pub fn name(self) -> &'static str {
+        match self {
+            RunStatus::Running => "running",
+            RunStatus::Completed => "completed",
+            RunStatus::Interrupted => "interrupted",
+            RunStatus::Aborted => "aborted",
+        }
+    }
+}
+
 /// A mission the vehicle cannot use: answered -2 (DESIGN.md, "Errors": a
 /// mission it cannot fly is a wrong request).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
