@@ -338,32 +338,37 @@ mod tests {
     }
 
     #[test]
-    fn a_flood_of_warnings_is_told_within_a_budget_and_a_full_queue_never_blocks() {
+    fn a_flood_of_warnings_is_told_within_a_budget_and_nobody_reading_blocks_nothing() {
         let log = RecentLog::new(8);
         let mut rx = log.tell_warnings();
         let subscriber = tracing_subscriber::registry().with(log.layer());
+        let started = Instant::now();
         tracing::subscriber::with_default(subscriber, || {
             for i in 0..1000 {
                 tracing::warn!("again {i}");
             }
         });
-        // The burst at once (a few more if the flood took long enough for
-        // the budget to fill), the rest withheld, and none blocked.
+        // The burst at once, plus what the budget refilled while the flood
+        // lasted (however slow a loaded machine made it); the rest withheld.
+        let refilled = (started.elapsed().as_secs_f64() * TELL_PER_S).ceil() as usize;
         let n = told(&mut rx).len();
         assert!(
-            (TELL_BURST as usize..TELL_BURST as usize + 10).contains(&n),
-            "{n}"
+            (TELL_BURST as usize..=TELL_BURST as usize + refilled).contains(&n),
+            "{n} told, {refilled} refilled"
         );
         assert_eq!(log.withheld(), 1000 - n as u64);
         // Nobody reading: the layer still returns, and the log has them all.
         let _unread = log.tell_warnings();
         let subscriber = tracing_subscriber::registry().with(log.layer());
+        let started = Instant::now();
         tracing::subscriber::with_default(subscriber, || {
             for i in 0..(TELL_QUEUE + 100) {
                 tracing::error!("unread {i}");
             }
         });
-        assert!(log.withheld() >= (TELL_QUEUE + 100 - TELL_BURST as usize - 10) as u64);
+        let refilled = (started.elapsed().as_secs_f64() * TELL_PER_S).ceil() as usize;
+        let sent = TELL_QUEUE + 100 - usize::try_from(log.withheld()).unwrap_or(0);
+        assert!(sent <= TELL_BURST as usize + refilled, "{sent} sent");
         assert!(log.recent(1)[0].ends_with(&format!("unread {}", TELL_QUEUE + 99)));
     }
 
