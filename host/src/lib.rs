@@ -27,6 +27,7 @@
 
 #![warn(missing_docs)]
 
+pub mod alarm;
 pub mod check_config;
 pub mod client;
 pub mod companion;

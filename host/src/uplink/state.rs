@@ -12,12 +12,13 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use rumqttc::v5::mqttbytes::QoS;
-use serde_json::Value;
-use tokio::time::{Instant, sleep, sleep_until};
+use serde::Deserialize;
+use tokio::time::{Instant, sleep};
 
 use super::Sessions;
 use super::link::Status;
 use super::serve::Shared;
+use crate::alarm::Alarm;
 use crate::events::{Event, Next, Subscriber};
 
 /// How long to wait before asking again when `state` was refused (a login
@@ -25,7 +26,7 @@ use crate::events::{Event, Next, Subscriber};
 const RETRY: Duration = Duration::from_millis(250);
 
 /// What a change of which publishes the state at once.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Deserialize)]
 struct Salient {
     fsm: Option<String>,
     armed: Option<bool>,
@@ -35,13 +36,14 @@ struct Salient {
 impl Salient {
     /// What matters of a `state` response; `None` if it is not a success.
     fn of(response: &str) -> Option<Salient> {
-        let value: Value = serde_json::from_str(response).ok()?;
-        let state = &value["state"];
-        (value["ret"] == 0).then(|| Salient {
-            fsm: state["fsm"].as_str().map(str::to_owned),
-            armed: state["armed"].as_bool(),
-            link: state["link"].as_str().map(str::to_owned),
-        })
+        // Only these fields: the rest is skipped, never built into values.
+        #[derive(Deserialize)]
+        struct Response {
+            ret: i64,
+            state: Option<Salient>,
+        }
+        let response: Response = serde_json::from_str(response).ok()?;
+        (response.ret == 0).then(|| response.state.unwrap_or_default())
     }
 }
 
@@ -87,14 +89,6 @@ async fn change(events: &mut Option<Subscriber>) -> Wake {
     Wake::Change
 }
 
-/// Sleeps until `at`, forever when `None`.
-async fn until(at: Option<Instant>) {
-    match at {
-        Some(at) => sleep_until(at).await,
-        None => std::future::pending().await,
-    }
-}
-
 /// Publishes the state while the uplink runs: every `1/hz` seconds (never
 /// periodically when `hz` is 0), at once on a change `events` tells, and at
 /// once after every (re)connection.
@@ -104,6 +98,7 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64, mut events: O
     // No client id is empty: no client shares this session's throttle key.
     let mut reporter = shared.sessions.open(None, shared.key(""));
     let mut last: Option<(Salient, Instant)> = None;
+    let mut alarm = Alarm::new();
     loop {
         let up = shared.status.get() == Status::Up;
         if !up {
@@ -116,7 +111,7 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64, mut events: O
         };
         let wake = tokio::select! {
             wake = change(&mut events) => wake,
-            () = until(due) => Wake::Period,
+            () = alarm.until(due) => Wake::Period,
             // A (re)connection, even without events.
             () = shared.status.up(), if !up => Wake::Change,
         };
@@ -179,7 +174,9 @@ mod tests {
 
     #[test]
     fn what_matters_of_a_state_response() {
-        let s = Salient::of(r#"{"ret":0,"cmd":2,"state":{"fsm":"hover","armed":true,"link":"up"}}"#);
+        let s = Salient::of(
+            r#"{"ret":0,"cmd":2,"state":{"fsm":"hover","pos":{"x":1.5},"armed":true,"link":"up","bat":[1,2]},"ts":9}"#,
+        );
         assert_eq!(
             s,
             Some(Salient {
