@@ -15,6 +15,13 @@ const HEAD_RESERVE: usize = r#"{"ret":-100,"cmd":255,"ts":-9223372036854775808"#
 pub const MIN_RESPONSE_CAPACITY: usize =
     HEAD_RESERVE + r#","msg":"Unsupported command: "}"#.len() + 6 * crate::error::messages::UNKNOWN_NAME_ECHO;
 
+/// Whether `reply`, a reply this crate wrote, is a success: its head
+/// starts `{"ret":0,` (a failure's `ret` is rewritten in place, never left
+/// 0). For a reader that needs no more of it than that.
+pub fn is_success(reply: &[u8]) -> bool {
+    reply.starts_with(br#"{"ret":0,"#)
+}
+
 impl Sink<'_> {
     /// `{"ret":..,"cmd":..,"ts":..`: in one piece when there is room for
     /// the longest (always, but in a buffer too small for any response).

@@ -15,6 +15,6 @@ mod envelope;
 mod fields;
 mod json;
 
-pub use envelope::MIN_RESPONSE_CAPACITY;
+pub use envelope::{MIN_RESPONSE_CAPACITY, is_success};
 pub(crate) use envelope::{finish, retry_after, write_error};
 pub use fields::{Fields, Items};

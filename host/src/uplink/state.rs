@@ -26,7 +26,7 @@ use crate::events::{Event, Next, Subscriber};
 const RETRY: Duration = Duration::from_millis(250);
 
 /// What a change of which publishes the state at once.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
 struct Salient {
     fsm: Option<String>,
     armed: Option<bool>,
@@ -34,16 +34,15 @@ struct Salient {
 }
 
 impl Salient {
-    /// What matters of a `state` response; `None` if it is not a success.
+    /// What matters of a `state` response; `None` if it is not one.
     fn of(response: &str) -> Option<Salient> {
         // Only these fields: the rest is skipped, never built into values.
         #[derive(Deserialize)]
         struct Response {
-            ret: i64,
-            state: Option<Salient>,
+            state: Salient,
         }
         let response: Response = serde_json::from_str(response).ok()?;
-        (response.ret == 0).then(|| response.state.unwrap_or_default())
+        Some(response.state)
     }
 }
 
@@ -97,17 +96,19 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64, mut events: O
     let mut out = vec![0u8; shared.response_capacity];
     // No client id is empty: no client shares this session's throttle key.
     let mut reporter = shared.sessions.open(None, shared.key(""));
-    let mut last: Option<(Salient, Instant)> = None;
+    // What the last publication said of what matters, and when it went.
+    let mut seen: Option<Salient> = None;
+    let mut at: Option<Instant> = None;
     let mut alarm = Alarm::new();
     loop {
         let up = shared.status.get() == Status::Up;
         if !up {
-            last = None;
+            (seen, at) = (None, None);
         }
-        let due = match &last {
+        let due = match at {
             _ if !up => None,
             None => Some(Instant::now()),
-            Some((_, at)) => period.map(|p| *at + p),
+            Some(at) => period.map(|p| at + p),
         };
         let wake = tokio::select! {
             wake = change(&mut events) => wake,
@@ -122,32 +123,31 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64, mut events: O
             continue;
         }
         // A refusal is no state: the last one stays retained.
-        let Some((response, salient)) = read(&*shared.sessions, &mut reporter, &mut out) else {
+        let Some(response) = shared
+            .sessions
+            .state(&mut reporter, &mut out)
+            .filter(|r| lluav_core::response::is_success(r.as_bytes()))
+        else {
             sleep(RETRY).await;
             continue;
         };
-        let changed = last.as_ref().is_none_or(|(seen, _)| *seen != salient);
-        if wake == Wake::Period || changed {
-            let topic = shared.topics.state().to_owned();
-            // Fails only once the connection's task is gone (shutdown).
-            let _ = shared
-                .client
-                .publish(topic, QoS::AtMostOnce, true, response)
-                .await;
-            last = Some((salient, Instant::now()));
+        // Only a change is compared (parsed): every change of what matters
+        // is an event, so a period in between publishes what was compared.
+        if wake != Wake::Period || seen.is_none() {
+            let salient = Salient::of(&response);
+            if salient.is_some() && salient == seen && wake != Wake::Period {
+                continue;
+            }
+            seen = salient;
         }
+        let topic = shared.topics.state().to_owned();
+        // Fails only once the connection's task is gone (shutdown).
+        let _ = shared
+            .client
+            .publish(topic, QoS::AtMostOnce, true, response)
+            .await;
+        at = Some(Instant::now());
     }
-}
-
-/// The `state` response and what matters of it; `None` if refused.
-fn read<S: Sessions>(
-    sessions: &S,
-    reporter: &mut lluav_core::Session,
-    out: &mut [u8],
-) -> Option<(String, Salient)> {
-    let response = sessions.state(reporter, out)?;
-    let salient = Salient::of(&response)?;
-    Some((response, salient))
 }
 
 #[cfg(test)]
@@ -186,5 +186,9 @@ mod tests {
             })
         );
         assert_eq!(Salient::of(r#"{"ret":-1,"cmd":2,"msg":"no"}"#), None);
+        assert!(lluav_core::response::is_success(br#"{"ret":0,"cmd":2,"ts":1}"#));
+        assert!(!lluav_core::response::is_success(
+            br#"{"ret":-1,"cmd":2,"ts":1,"msg":"no"}"#
+        ));
     }
 }
