@@ -16,8 +16,6 @@ use tokio::time::{Instant, sleep_until};
 pub struct Alarm {
     #[cfg(any(target_os = "linux", target_os = "android"))]
     fd: Option<linux::Fd>,
-    /// What the timerfd is set to, if it has not fired yet.
-    set: Option<Instant>,
 }
 
 impl Alarm {
@@ -26,7 +24,6 @@ impl Alarm {
         Alarm {
             #[cfg(any(target_os = "linux", target_os = "android"))]
             fd: linux::Fd::new(),
-            set: None,
         }
     }
 
@@ -37,8 +34,8 @@ impl Alarm {
             return std::future::pending().await;
         };
         #[cfg(any(target_os = "linux", target_os = "android"))]
-        if let Some(fd) = &self.fd {
-            match fd.until(at, &mut self.set).await {
+        if let Some(fd) = &mut self.fd {
+            match fd.until(at).await {
                 Ok(()) => return,
                 // Never seen; the wheel still keeps time.
                 Err(e) => {
@@ -47,7 +44,6 @@ impl Alarm {
                 }
             }
         }
-        self.set = None;
         sleep_until(at).await;
     }
 }
@@ -70,7 +66,11 @@ mod linux {
     use tokio::time::Instant;
 
     /// A non-blocking monotonic timerfd in tokio's reactor.
-    pub struct Fd(AsyncFd<Timer>);
+    pub struct Fd {
+        timer: AsyncFd<Timer>,
+        /// What it is set to, if that has not fired yet.
+        set: Option<Instant>,
+    }
 
     /// What AsyncFd needs of the timerfd.
     struct Timer(TimerFd);
@@ -92,24 +92,25 @@ mod linux {
             // or closed while the AsyncFd holds it: `as_raw_fd` returns the
             // same open descriptor for the AsyncFd's whole life.
             let registered = unsafe { AsyncFd::register_with_interest(Timer(timer), Interest::READABLE) };
-            registered.ok().map(Fd)
+            let timer = registered.ok()?;
+            Some(Fd { timer, set: None })
         }
 
-        /// Waits until `at`; `set` is what the timer is set to.
-        pub async fn until(&self, at: Instant, set: &mut Option<Instant>) -> io::Result<()> {
+        /// Waits until `at`.
+        pub async fn until(&mut self, at: Instant) -> io::Result<()> {
             loop {
                 // A zero TimeSpec would disarm it: a deadline now or past is due.
                 let left = at.saturating_duration_since(Instant::now());
                 if left.is_zero() {
-                    *set = None;
+                    self.set = None;
                     return Ok(());
                 }
-                if *set != Some(at) {
+                if self.set != Some(at) {
                     let when = Expiration::OneShot(TimeSpec::from_duration(left));
-                    self.0.get_ref().0.set(when, TimerSetTimeFlags::empty())?;
-                    *set = Some(at);
+                    self.timer.get_ref().0.set(when, TimerSetTimeFlags::empty())?;
+                    self.set = Some(at);
                 }
-                let mut ready = self.0.readable().await?;
+                let mut ready = self.timer.readable().await?;
                 // The expiry count's read; would block when the readiness
                 // was an earlier deadline's, already read.
                 match ready.try_io(|t| t.get_ref().0.wait().map_err(io::Error::from)) {
@@ -117,7 +118,7 @@ mod linux {
                         // The read took the whole count: nothing is left to
                         // read until the next deadline.
                         ready.clear_ready();
-                        *set = None;
+                        self.set = None;
                         return Ok(());
                     }
                     Ok(Err(e)) => return Err(e),

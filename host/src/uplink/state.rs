@@ -135,7 +135,7 @@ pub async fn publish<S: Sessions>(shared: Arc<Shared<S>>, hz: f64, mut events: O
         // is an event, so a period in between publishes what was compared.
         if wake != Wake::Period || seen.is_none() {
             let salient = Salient::of(&response);
-            if salient.is_some() && salient == seen && wake != Wake::Period {
+            if salient.is_some() && salient == seen {
                 continue;
             }
             seen = salient;
