@@ -9,7 +9,7 @@
 //! the ids' records) are allocated and freed in one arena after another,
 //! and each arena grows to hold a good part of them. The bench's 100,000
 //! client ids (BENCHMARKS.md, "Uplink") measured +33 MiB of VmRSS over
-//! six arenas against about 15 MiB of live heap; with two arenas, +20 MiB.
+//! six arenas against about 15 MiB of live heap; with two arenas, +18 MiB.
 
 /// Arenas at most, whatever the threads: two, so that the two workers of
 /// a two-core companion computer rarely wait for each other's lock.

@@ -14,7 +14,7 @@ use std::collections::VecDeque;
 use ::mavlink::dialects::ardupilotmega::{MavSeverity, STATUSTEXT_DATA};
 use lluav_core::Failsafe;
 
-use crate::events::Event;
+use crate::events::{Event, battery_band};
 
 /// The battery level the first battery event is told at: the simulator's
 /// `low_battery` default. (The autopilot's own low-battery level is not
@@ -180,12 +180,11 @@ fn text(s: &STATUSTEXT_DATA) -> Option<String> {
 /// The band to tell after `told` at `percent`: a fall at once, a climb
 /// only once [`BATTERY_HYSTERESIS`] above the level it climbs past.
 fn next_band(told: i32, percent: f64, low: f64) -> i32 {
-    let band = crate::events::battery_band;
-    let now = band(percent, low);
+    let now = battery_band(percent, low);
     if now >= told {
         now
     } else {
-        told.min(band(percent - BATTERY_HYSTERESIS, low))
+        told.min(battery_band(percent - BATTERY_HYSTERESIS, low))
     }
 }
 
