@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import selectors
 import socket
 import ssl
@@ -91,24 +92,18 @@ class OneCallAtATime(ssl.SSLSocket):
                     events = selectors.EVENT_WRITE
                 except BlockingIOError:
                     events = waits_for
-            if timeout == 0.0:
-                raise BlockingIOError("the socket is not ready")
+                if timeout == 0.0:
+                    raise BlockingIOError("the socket is not ready")
+                # The wait holds a descriptor of its own: a close meanwhile
+                # cannot free the number for another file, and its
+                # shutdown (see close) ends the wait.
+                waiting_on = os.dup(self.fileno())
             if timeout is not None and deadline is None:
                 deadline = time.monotonic() + timeout
-            self._wait(events, deadline)
-
-    def _wait(self, events: int, deadline: float | None) -> None:
-        # poll(), where there is one, reports a descriptor closed meanwhile
-        # at once; the slice bounds the wait should its number be reused.
-        left = _SLICE if deadline is None else min(_SLICE, max(0.0, deadline - time.monotonic()))
-        try:
-            with _Selector() as waiting:
-                waiting.register(self.fileno(), events)
-                ready = waiting.select(left)
-        except ValueError as e:  # a negative descriptor: closed
-            raise OSError(f"the socket is closed: {e}") from e
-        if not ready and deadline is not None and time.monotonic() >= deadline:
-            raise socket.timeout("timed out")
+            try:
+                _wait(waiting_on, events, deadline)
+            finally:
+                os.close(waiting_on)
 
     def do_handshake(self, block: bool = False) -> None:
         if "_lluav_timeout" not in self.__dict__:
@@ -138,8 +133,8 @@ class OneCallAtATime(ssl.SSLSocket):
         return self._call(shut, selectors.EVENT_READ)
 
     def close(self) -> None:
-        # A reader waiting for data sees the end of the stream and returns
-        # rather than waiting on a closed descriptor.
+        # A reader waiting for data (on its own descriptor) sees the end of
+        # the stream and returns.
         with self._one():
             try:
                 socket.socket.shutdown(self, socket.SHUT_RDWR)
@@ -148,5 +143,14 @@ class OneCallAtATime(ssl.SSLSocket):
             super().close()
 
 
-_SLICE = 1.0
+def _wait(fd: int, events: int, deadline: float | None) -> None:
+    """Waits until ``fd`` is ready for ``events``, or raises a timeout once
+    ``deadline`` (monotonic) passes."""
+    with _Selector() as waiting:
+        waiting.register(fd, events)
+        while not waiting.select(None if deadline is None else max(0.0, deadline - time.monotonic())):
+            if deadline is not None and time.monotonic() >= deadline:
+                raise socket.timeout("timed out")
+
+
 _Selector = getattr(selectors, "PollSelector", selectors.SelectSelector)
