@@ -37,6 +37,7 @@ pub mod daemon;
 pub mod events;
 pub mod files;
 pub mod journal;
+pub mod json;
 pub mod malloc;
 pub mod mavlink;
 pub mod net;

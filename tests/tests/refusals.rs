@@ -68,6 +68,15 @@ async fn waypoints_are_objects_and_mission_reasons_speak_the_protocol() {
             r#"mission 1:[{"x":1e400,"y":0,"z":-2}]"#,
             r#"waypoint 1: "x" out of range (a 64-bit float: -1.7976931348623157e308..1.7976931348623157e308)"#,
         ),
+        // "The last one wins" would fly a z nobody reading the first saw.
+        (
+            r#"mission 1:[{"x":1,"y":0,"z":-2,"z":-0.1}]"#,
+            r#"waypoint 1: duplicate member "z""#,
+        ),
+        (
+            r#"mission 1:{"waypoints":[{"x":1,"y":0,"z":-2}],"waypoints":[]}"#,
+            r#"duplicate member "waypoints""#,
+        ),
     ] {
         assert_eq!(answer(&mut c, frame).await, invalid(why), "{frame}");
     }

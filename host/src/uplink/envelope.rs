@@ -8,8 +8,8 @@ use std::fmt;
 use lluav_core::Ret;
 use serde_json::{Map, Value};
 
-use super::json::{self, Duplicate};
 use super::topic::MAX_NAME;
+use crate::json::{self, Duplicate};
 
 /// Longest request id, in characters.
 pub const MAX_ID_CHARS: usize = MAX_NAME;

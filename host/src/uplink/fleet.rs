@@ -36,10 +36,10 @@ use tokio::sync::oneshot;
 
 use super::broker::Dial;
 use super::config::BrokerUrl;
-use super::json;
 use super::serve::unix_ms;
 use super::topic::{self, Topics, valid_name};
 use crate::client::{ClientError, Response};
+use crate::json;
 use crate::terminal;
 
 /// How long the first listing waits for the retained messages at most.

@@ -39,7 +39,6 @@ pub mod durable;
 pub mod envelope;
 pub mod events;
 pub mod fleet;
-pub mod json;
 pub mod link;
 pub mod serve;
 pub mod state;

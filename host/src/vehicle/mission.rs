@@ -10,6 +10,7 @@ use serde_json::value::RawValue;
 
 use super::envelope::Envelope;
 use super::{Ned, Refusal};
+use crate::json::{self, NotMembers};
 
 /// Most waypoints one mission may hold: `mw_list` of that many, every
 /// number at its longest, is under 55 KB, so it fits lluavd's 64 KiB
@@ -111,7 +112,10 @@ pub(crate) fn parse(text: &str, envelope: &Envelope) -> Result<Vec<Waypoint>, Ba
         .map_err(|e| bad(format!("not JSON (line {}, column {})", e.line(), e.column())))?;
     let list = match first_byte(top) {
         b'[' => elements(top).map_err(bad)?,
-        b'{' => waypoints_member(&members(top).map_err(bad)?).map_err(bad)?,
+        b'{' => {
+            let members = members(top).map_err(|e| bad(e.to_string()))?;
+            waypoints_member(&members).map_err(bad)?
+        }
         _ => {
             return Err(bad(
                 r#"a mission is {"waypoints":[...]} or an array of waypoints"#.into(),
@@ -153,9 +157,10 @@ fn elements(raw: &RawValue) -> Result<Vec<&RawValue>, String> {
     serde_json::from_str(raw.get()).map_err(|_| "not an array".into())
 }
 
-/// The members of an object whose syntax was checked already.
-fn members(raw: &RawValue) -> Result<Members<'_>, String> {
-    serde_json::from_str(raw.get()).map_err(|_| "not an object".into())
+/// The members of an object whose syntax was checked already, each named
+/// once.
+fn members(raw: &RawValue) -> Result<Members<'_>, NotMembers> {
+    json::members(raw.get())
 }
 
 /// The `waypoints` array of a mission object, its only member.
@@ -198,7 +203,10 @@ fn waypoint(item: &RawValue, n: usize) -> Result<Waypoint, String> {
     if first_byte(item) != b'{' {
         return Err(not_an_object());
     }
-    let members = members(item).map_err(|_| not_an_object())?;
+    let members = members(item).map_err(|e| match e {
+        NotMembers::NotAnObject => not_an_object(),
+        duplicate => duplicate.to_string(),
+    })?;
     if members.keys().any(|k| !MEMBERS.contains(&k.as_str())) {
         return Err(r#"unexpected member (a waypoint has "id", "x", "y", "z", "yaw")"#.into());
     }
@@ -314,6 +322,18 @@ mod tests {
                 r#"a mission is {"waypoints":[...]} or an array of waypoints"#,
             ),
             (r#"{"waypoints":[]}"#, "no waypoints"),
+            (
+                r#"{"waypoints":[{"x":1,"y":2,"z":-3}],"waypoints":[]}"#,
+                r#"duplicate member "waypoints""#,
+            ),
+            (
+                r#"[{"x":1,"y":2,"z":-3},{"x":1,"y":2,"z":-3,"z":0}]"#,
+                r#"waypoint 2: duplicate member "z""#,
+            ),
+            (
+                r#"[{"x":1,"y":2,"z":-3,"x":1e400}]"#,
+                r#"waypoint 1: duplicate member "x""#,
+            ),
             ("[]", "no waypoints"),
             (r#"{"takeoff_alt": 2.5"#, "not JSON (line 1, column 19)"),
             (

@@ -1,16 +1,22 @@
-//! JSON as the uplink reads it: a member named twice in any object is
-//! refused (DESIGN.md, "Request grammar"). RFC 8259 leaves duplicates to
-//! the reader, and "the last one wins" let `"frame":"ver",
-//! "frame":"login 1025"` run the second frame behind a first one that a
-//! reviewer (or a filter) saw.
+//! JSON as lluav reads it (uplink envelopes, mission waypoints): a member
+//! named twice in any object is refused (DESIGN.md, "Request grammar").
+//! RFC 8259 leaves duplicates to the reader, and "the last one wins" let
+//! `"frame":"ver", "frame":"login 1025"` run the second frame behind a
+//! first one that a reviewer (or a filter) saw; in a waypoint it would fly
+//! a `z` other than the one a reviewer read.
 //!
 //! [`read`] builds the value in one pass and reports the first duplicate
 //! it met, so that a caller can still answer with what it could read (the
-//! request's id).
+//! request's id). [`members`] reads one object's members as raw text, for
+//! a caller that reads each value on its own (a number too large for an
+//! `f64` is then refused at its member, not as "not JSON").
 
+use std::collections::BTreeMap;
 use std::fmt;
+use std::marker::PhantomData;
 
 use serde::de::{self, DeserializeSeed, MapAccess, SeqAccess, Visitor};
+use serde_json::value::RawValue;
 use serde_json::{Map, Number, Value};
 
 /// The longest member name a [`Duplicate`] repeats, in characters.
@@ -52,6 +58,81 @@ pub fn unique(bytes: &[u8]) -> Option<Value> {
     match read(bytes) {
         Ok((value, None)) => Some(value),
         _ => None,
+    }
+}
+
+/// Why [`members`] read no members.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum NotMembers {
+    /// The text is not one JSON object.
+    NotAnObject,
+    /// The object names a member twice.
+    Duplicate(Duplicate),
+}
+
+impl fmt::Display for NotMembers {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            NotMembers::NotAnObject => f.write_str("not an object"),
+            NotMembers::Duplicate(d) => d.fmt(f),
+        }
+    }
+}
+
+/// The members of the JSON object `text` by name, each value as its raw
+/// text, every name once.
+pub fn members(text: &str) -> Result<BTreeMap<String, &RawValue>, NotMembers> {
+    let mut duplicate = None;
+    let mut de = serde_json::Deserializer::from_str(text);
+    let read = Names {
+        duplicate: &mut duplicate,
+        raw: PhantomData,
+    }
+    .deserialize(&mut de)
+    .and_then(|members| de.end().map(|()| members));
+    match (read, duplicate) {
+        (_, Some(d)) => Err(NotMembers::Duplicate(d)),
+        (Ok(members), None) => Ok(members),
+        (Err(_), None) => Err(NotMembers::NotAnObject),
+    }
+}
+
+/// Reads an object's members as raw text and stops at the first name
+/// given twice.
+struct Names<'d, 'a> {
+    duplicate: &'d mut Option<Duplicate>,
+    raw: PhantomData<&'a RawValue>,
+}
+
+impl<'de: 'a, 'a> DeserializeSeed<'de> for Names<'_, 'a> {
+    type Value = BTreeMap<String, &'a RawValue>;
+
+    fn deserialize<D: de::Deserializer<'de>>(self, deserializer: D) -> Result<Self::Value, D::Error> {
+        deserializer.deserialize_map(self)
+    }
+}
+
+impl<'de: 'a, 'a> Visitor<'de> for Names<'_, 'a> {
+    type Value = BTreeMap<String, &'a RawValue>;
+
+    fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("a JSON object")
+    }
+
+    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        let mut members = BTreeMap::new();
+        while let Some(name) = map.next_key::<String>()? {
+            let value: &'a RawValue = map.next_value()?;
+            if members.contains_key(&name) {
+                *self.duplicate = Some(Duplicate {
+                    name: name.chars().take(NAME_SHOWN).collect(),
+                    top: true,
+                });
+                return Err(de::Error::custom("duplicate member"));
+            }
+            members.insert(name, value);
+        }
+        Ok(members)
     }
 }
 
@@ -212,5 +293,19 @@ mod tests {
         assert!(shown.starts_with(r#"duplicate member "\u001b"#), "{shown}");
         assert_eq!(shown.matches("\\u001b").count(), 64, "{shown}");
         assert!(!shown.contains('\u{1b}'));
+    }
+
+    #[test]
+    fn members_are_one_objects_names_each_once_with_their_raw_values() {
+        let m = members(r#" {"x": 1e400, "y":[1,{"a":1}], "z":null} "#).expect("members");
+        let raw: Vec<(&str, &str)> = m.iter().map(|(k, v)| (k.as_str(), v.get())).collect();
+        assert_eq!(raw, [("x", "1e400"), ("y", r#"[1,{"a":1}]"#), ("z", "null")]);
+        for text in ["[]", "7", r#""{}""#, "{} {}", r#"{"x":1"#, ""] {
+            assert_eq!(members(text).err(), Some(NotMembers::NotAnObject), "{text}");
+        }
+        let twice = members(r#"{"z":-3,"y":0,"z":0}"#).unwrap_err();
+        assert_eq!(twice.to_string(), r#"duplicate member "z""#);
+        // A value's own members are its reader's to check.
+        assert!(members(r#"{"w":{"a":1,"a":2}}"#).is_ok());
     }
 }
