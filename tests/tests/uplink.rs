@@ -960,13 +960,27 @@ async fn idle_uplink_sessions_end_and_websocket_shows_the_uplink_off_without_one
     let dir = tempfile::tempdir().expect("temp dir");
     let options = Options::password(PASSWORD).with_args(&["--idle-timeout", "1"]);
     let daemon = vehicle(&dir.path().join("a"), &broker, "v1", options).await;
+    let mut sub = Conn::connect(&format!("{}/events", daemon.url)).await;
+    assert_eq!(sub.request(&format!("login {PASSWORD}")).await["ret"], 0);
     let mut op = operator(&broker, "op").await;
     assert_eq!(
         op.request("v1", "op", "1", &format!("login {PASSWORD}")).await["response"]["ret"],
         0
     );
-    assert_eq!(op.request("v1", "op", "2", "state").await["response"]["ret"], 0);
-    tokio::time::sleep(Duration::from_millis(2500)).await;
+    // Control makes the session's end visible: it is freed, and told, the
+    // moment the idle session ends (its own lapse is 30 s away).
+    let take = op.request("v1", "op", "2", "control_take").await;
+    assert_eq!(take["response"]["ret"], 0, "{take}");
+    let taken = flight_event(&mut sub).await;
+    assert_eq!(taken["event"], "control", "{taken}");
+    let pilot = taken["by"].clone();
+    assert!(pilot.is_string(), "{taken}");
+    let freed = flight_event(&mut sub).await;
+    assert_eq!(
+        (&freed["event"], &freed["by"], &freed["from"]),
+        (&"control".into(), &Value::Null, &pilot),
+        "the idle session ended: {freed}"
+    );
     assert_eq!(
         op.request("v1", "op", "3", "state").await["response"]["msg"],
         "Login first!"
