@@ -477,7 +477,12 @@ impl<B: Backend, C: Clock, S: Slots> Server<B, C, S> {
                 }
                 return Err(Failure::failed(messages::WRONG_PASSWORD));
             }
-            LoginOutcome::User | LoginOutcome::Admin | LoginOutcome::LoggedOut => {}
+            // A session that logged out can no longer fly: what it held
+            // would otherwise block everyone until control_timeout.
+            LoginOutcome::LoggedOut => {
+                self.control.release(session.id());
+            }
+            LoginOutcome::User | LoginOutcome::Admin => {}
         }
         out.bool("logged_in", session.logged_in())
             .bool("admin", session.admin());

@@ -100,7 +100,7 @@ fn a_conservative_command_from_anyone_runs_and_passes_control_to_its_sender() {
 }
 
 #[test]
-fn control_ends_with_release_the_session_and_silence() {
+fn control_ends_with_release_the_session_a_logout_and_silence() {
     let (mut s, mut ss) = vehicle(3);
     let [a, b, c] = &mut ss[..] else { unreachable!() };
     assert_eq!(
@@ -117,6 +117,14 @@ fn control_ends_with_release_the_session_and_silence() {
     assert_eq!(send(&mut s, b, "set_sp_ned 1:1:-2:0").ret(), 0, "free again");
     // The session ends: free at once.
     s.close(b);
+    assert_eq!(send(&mut s, c, "set_sp_ned 1:1:-2:0").ret(), 0);
+    // So does logging out (the connection stays).
+    assert_eq!(send(&mut s, c, "login 0315").ret(), 0);
+    assert_eq!(
+        send(&mut s, a, "control").json()["control"],
+        serde_json::Value::Null
+    );
+    assert_eq!(send(&mut s, c, "login pw").ret(), 0);
     assert_eq!(send(&mut s, c, "set_sp_ned 1:1:-2:0").ret(), 0);
     // Any request keeps it; 30 s of silence ends it.
     advance(29_000);

