@@ -105,6 +105,13 @@ pub(crate) fn observed<V: Vehicle, R>(
     let after = pilot(server);
     let mut events = Vec::new();
     if before.as_ref().map(|p| (p.0, p.1)) != after.as_ref().map(|p| (p.0, p.1)) {
+        // DESIGN: a take-over is logged; so is every other change of who
+        // flies, for whoever reads the log after a flight.
+        info!(
+            by = after.as_ref().map_or("free", |p| p.2.as_str()),
+            from = before.as_ref().map_or("free", |p| p.2.as_str()),
+            "control changed"
+        );
         events.push(Event::Control {
             by: after.map(|p| p.2),
             from: before.map(|p| p.2),

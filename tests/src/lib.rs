@@ -29,7 +29,7 @@ use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Condvar, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
@@ -137,6 +137,19 @@ impl Options {
     }
 }
 
+/// What a daemon wrote to stderr, and a signal for every piece more.
+#[derive(Default)]
+struct Log {
+    text: Mutex<String>,
+    grew: Condvar,
+}
+
+impl Log {
+    fn text(&self) -> std::sync::MutexGuard<'_, String> {
+        self.text.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
 /// A running `lluavd`, killed on drop if still running.
 pub struct Lluavd {
     child: Child,
@@ -146,7 +159,7 @@ pub struct Lluavd {
     pub url: String,
     /// Its data directory.
     pub data_dir: PathBuf,
-    stderr: Arc<Mutex<String>>,
+    stderr: Arc<Log>,
     more_stdout: Arc<Mutex<Vec<String>>>,
 }
 
@@ -190,14 +203,15 @@ impl Lluavd {
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
         let mut child = cmd.spawn().expect("lluavd spawns");
-        let stderr = Arc::new(Mutex::new(String::new()));
+        let stderr = Arc::new(Log::default());
         let mut err_pipe = child.stderr.take().expect("stderr is piped");
         let sink = Arc::clone(&stderr);
         let stderr_reader = std::thread::spawn(move || {
             let mut buf = [0u8; 4096];
             while let Ok(n @ 1..) = err_pipe.read(&mut buf) {
                 let text = String::from_utf8_lossy(buf.get(..n).unwrap_or_default()).into_owned();
-                sink.lock().unwrap_or_else(|p| p.into_inner()).push_str(&text);
+                sink.text().push_str(&text);
+                sink.grew.notify_all();
             }
         });
         let stdout = child.stdout.take().expect("stdout is piped");
@@ -236,7 +250,7 @@ impl Lluavd {
                 if status.is_some() {
                     let _ = stderr_reader.join();
                 }
-                let text = stderr.lock().unwrap_or_else(|p| p.into_inner()).clone();
+                let text = stderr.text().clone();
                 Err((status, format!("stdout: {line:?}\nstderr:\n{text}")))
             }
         }
@@ -249,7 +263,28 @@ impl Lluavd {
 
     /// What the daemon wrote to stderr so far.
     pub fn stderr(&self) -> String {
-        self.stderr.lock().unwrap_or_else(|p| p.into_inner()).clone()
+        self.stderr.text().clone()
+    }
+
+    /// Waits (within [`WAIT`]) until the daemon's stderr holds a line with
+    /// every one of `parts`; returns that line.
+    pub fn log_until(&self, parts: &[&str]) -> String {
+        let deadline = Instant::now() + WAIT;
+        let mut text = self.stderr.text();
+        loop {
+            let found = text.lines().find(|l| parts.iter().all(|p| l.contains(p)));
+            if let Some(line) = found {
+                return line.to_owned();
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            assert!(!left.is_zero(), "lluavd never logged {parts:?}:\n{}", *text);
+            text = self
+                .stderr
+                .grew
+                .wait_timeout(text, left)
+                .unwrap_or_else(|p| p.into_inner())
+                .0;
+        }
     }
 
     /// Lines printed to stdout after the `listening on` line (the contract

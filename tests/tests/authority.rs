@@ -76,7 +76,7 @@ async fn a_landing_asked_by_another_session_holds_while_the_pilot_streams() {
 
 #[tokio::test]
 async fn control_take_takes_over_and_control_release_frees_control() {
-    let (_dir, _daemon, mut s) = vehicle(2, "10").await;
+    let (_dir, daemon, mut s) = vehicle(2, "10").await;
     let [a, b] = &mut s[..] else { unreachable!() };
     assert_eq!(a.request("control").await["control"], Value::Null);
     hovering(a).await;
@@ -87,6 +87,11 @@ async fn control_take_takes_over_and_control_release_frees_control() {
         (taken["ret"].clone(), taken["control"]["you"].clone()),
         (0.into(), true.into())
     );
+    // The take-over is logged (DESIGN), naming both sessions.
+    let (pilot, taker) = (label_of(b).await, taken["control"]["by"].clone());
+    assert_eq!(taker, pilot.as_str());
+    let line = daemon.log_until(&["control changed", &format!("by=\"{pilot}\"")]);
+    assert!(line.contains("from=\"ws 127.0.0.1:"), "{line}");
     assert_eq!(b.request("set_sp_ned 1:0:-2:0").await["ret"], 0);
     assert_eq!(a.request("set_sp_ned 2:0:-2:0").await["ret"], -1);
     assert_eq!(
