@@ -82,8 +82,22 @@ fn mission_waypoints_are_checked_at_upload_and_again_at_mw_exec() {
         reason(&mut h, &wp("-3.5")),
         "waypoint 1: altitude 3.5 m above max_alt 3 m"
     );
+    h.ok(r#"mission 6:{"waypoints":[{"x":1,"y":0,"z":-1}]}"#);
     h.ok(&wp("-3"));
     h.ok(r#"mission 8:{"waypoints":[{"x":10,"y":0,"z":-1}]}"#);
+    assert_eq!(
+        reason(
+            &mut h,
+            r#"mission 9:{"waypoints":[{"x":1,"y":0,"z":-2},{"x":0,"y":10.01,"z":-2}]}"#
+        ),
+        "waypoint 2: distance from home 10.1 m beyond geofence_radius 10 m",
+        "refused whole"
+    );
+    assert_eq!(
+        reason(&mut h, "mw_exec 9:1"),
+        "unknown mission 9",
+        "nothing stored"
+    );
     // The limits move on the ground; the stored missions no longer fit.
     h.ok("land");
     h.run_until_fsm("disarmed", 30.0);
@@ -99,6 +113,52 @@ fn mission_waypoints_are_checked_at_upload_and_again_at_mw_exec() {
         "waypoint 1: distance from home 10 m beyond geofence_radius 9 m"
     );
     assert_eq!(h.fsm(), "hover", "nothing was flown");
+}
+
+#[test]
+fn an_ai1_mission_file_is_held_to_the_envelope_like_a_mission() {
+    let mut h = boxed_in();
+    let missions = h.dir.join("missions");
+    std::fs::create_dir_all(&missions).expect("missions dir");
+    std::fs::write(
+        missions.join("high.json"),
+        r#"[{"x":1,"y":0,"z":-2},{"x":1,"y":1,"z":-3.5}]"#,
+    )
+    .expect("written");
+    std::fs::write(
+        missions.join("edge.json"),
+        r#"[{"x":6,"y":8,"z":-3},{"x":0,"y":0,"z":-1}]"#,
+    )
+    .expect("written");
+    assert_eq!(
+        reason(&mut h, "ai1_mission t1:missions/high.json"),
+        "waypoint 2: altitude 3.5 m above max_alt 3 m"
+    );
+    assert_eq!(h.ok("ai1_mission t2:missions/edge.json")["task_id"], "t2");
+}
+
+#[test]
+fn test_listwp_tells_each_waypoint_of_a_file_against_the_envelope() {
+    let mut h = boxed_in();
+    let missions = h.dir.join("missions");
+    std::fs::create_dir_all(&missions).expect("missions dir");
+    std::fs::write(
+        missions.join("m.json"),
+        r#"[{"x":0,"y":0,"z":-1},{"x":10,"y":0,"z":-3},{"x":0,"y":0,"z":-3.01},{"x":0,"y":10.01,"z":-2},{"x":0,"y":0,"z":-0.99}]"#,
+    )
+    .expect("written");
+    let r = h.ok("test_listwp missions/m.json");
+    assert_eq!(r["reachable"], false);
+    assert_eq!(
+        r["waypoints"],
+        json!([
+            {"id": 1, "reachable": true},
+            {"id": 2, "reachable": true},
+            {"id": 3, "reachable": false, "reason": "altitude 3.01 m above max_alt 3 m"},
+            {"id": 4, "reachable": false, "reason": "distance from home 10.1 m beyond geofence_radius 10 m"},
+            {"id": 5, "reachable": false, "reason": "altitude 0.99 m below min_alt 1 m"},
+        ])
+    );
 }
 
 #[test]
@@ -119,11 +179,20 @@ fn takeoff_and_return_climb_only_as_high_as_max_alt_and_say_so() {
         h.run_for(0.5);
     }
     assert!(highest <= 3.0 + 1e-6, "climbed to {highest}");
+    // The mission return alike.
+    h.ok("set_sp_ned 5:0:-2:0");
+    h.run_until_fsm("hover", 20.0);
+    assert_eq!(h.ok("mrtl")["return_alt"], 3.0);
     // And no lower than min_alt.
     let mut low = Harness::new(10.0);
     low.ok("set_param min_alt:2.5");
     low.ok("set_param takeoff_alt:1");
+    low.ok("set_param rtl_alt:2");
     assert_eq!(low.ok("takeoff")["target_alt"], 2.5);
+    low.run_until_fsm("hover", 20.0);
+    low.ok("set_sp_ned 3:0:-2.5:0");
+    low.run_for(5.0);
+    assert_eq!(low.ok("rtl")["return_alt"], 2.5);
 }
 
 #[test]
@@ -153,6 +222,29 @@ fn test_wp_only_tests_and_says_why_a_point_is_outside() {
         (json!(false), json!("altitude 0 m below min_alt 1 m"))
     );
     assert_eq!(h.ok("test_wp 1:0:-2")["reachable"], true);
+    for frame in ["test_wp 0:0:-1", "test_wp 0:0:-3", "test_wp 6:8:-2"] {
+        let r = h.ok(frame);
+        assert_eq!(
+            (&r["reachable"], &r["reason"]),
+            (&json!(true), &Value::Null),
+            "{frame}"
+        );
+    }
+    for (frame, why) in [
+        ("test_wp 0:0:-3.01", "altitude 3.01 m above max_alt 3 m"),
+        (
+            "test_wp 0:10.01:-2",
+            "distance from home 10.1 m beyond geofence_radius 10 m",
+        ),
+    ] {
+        let r = h.ok(frame);
+        assert_eq!(
+            (&r["reachable"], &r["reason"]),
+            (&json!(false), &json!(why)),
+            "{frame}"
+        );
+    }
+    assert_eq!(h.fsm(), "hover", "testing flies nothing");
 }
 
 #[test]
@@ -167,6 +259,11 @@ fn relocate_pos_puts_a_vehicle_on_the_ground_inside_the_fence() {
     assert_eq!(
         reason(&mut h, "relocate_pos 30,0,0,0"),
         "distance from home 30 m beyond geofence_radius 10 m"
+    );
+    h.ok("relocate_pos 6,-8,0,0");
+    assert_eq!(
+        reason(&mut h, "relocate_pos 0,10.01,0,0"),
+        "distance from home 10.1 m beyond geofence_radius 10 m"
     );
     h.ok("relocate_pos 1,2,0,0.5");
     assert_eq!(h.state()["altitude"], 0.0);
