@@ -24,9 +24,10 @@ use std::collections::{HashMap, HashSet};
 use bytes::Bytes;
 use libfuzzer_sys::fuzz_target;
 use lluav_core::Auth;
+use lluav_host::json;
 use lluav_host::uplink::durable::{self, Entry, Outcome};
+use lluav_host::uplink::envelope;
 use lluav_host::uplink::table::{Admit, Job, Limits, Restored, Table, Take};
-use lluav_host::uplink::{envelope, json};
 use serde_json::Value;
 
 const CLIENTS: [&str; 5] = ["a", "b", "c", "d", "e"];
