@@ -285,6 +285,14 @@ fn abort_report_steers_only_while_a_mission_runs() {
         true,
         "and takes no control"
     );
+    // A running mission's abort steers: a failsafe refuses it, even to the
+    // pilot.
+    s.backend_mut().mission_running = true;
+    s.backend_mut().failsafe = Some(BATTERY_LOW);
+    assert_eq!(
+        send(&mut s, a, "abort_report").msg(),
+        "Vehicle is in failsafe (battery_low): land, rtl or control_take failsafe"
+    );
 }
 
 #[test]
