@@ -11,8 +11,8 @@
 //!
 //! - [`topic`]: the topic layout and the id alphabet;
 //! - [`envelope`]: request and response envelopes;
-//! - [`crate::json`] (shared with the daemon): JSON that refuses members
-//!   named twice;
+//! - [`crate::json`] (shared with the mission reader): JSON that refuses
+//!   members named twice;
 //! - [`table`]: sessions per client id, requests in flight, and the
 //!   10-minute memory of request ids that makes repeats harmless;
 //! - [`durable`]: the answers of requests that change the vehicle, kept in
